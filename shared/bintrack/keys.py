@@ -1,0 +1,128 @@
+"""Key expressions of DESIGN §3: build them for a network and parse them back.
+
+Every key is ``bintrack/<net>/<suffix>``; ``<net>`` is the deployment name.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .messages import check_sensor_id
+
+ROOT = "bintrack"
+
+# kind -> (suffix before the id, suffix after the id); None where the key has no id part.
+_PER_SENSOR = {
+    "raw": ("raw", None),
+    "transition": ("sensor", "transition"),
+    "state": ("sensor", "state"),
+    "estimate": ("peer", "estimate"),
+}
+_FIXED = {
+    "fusion/reports": "fusion_reports",
+    "tracks": "tracks",
+    "laser/objects": "laser_objects",
+    "motion/velocity": "motion_velocity",
+    "deployment": "deployment",
+    "clock": "clock",
+    "control/eos": "eos",
+}
+
+
+def _chunk(value: str, what: str) -> str:
+    if not value or any(c in value for c in "/*$?#") or value.strip() != value:
+        raise ValueError(f"{what} {value!r} cannot be a key-expression chunk")
+    return value
+
+
+@dataclass(frozen=True)
+class Keys:
+    """The key expressions of one network (``net``)."""
+
+    net: str = "default"
+
+    def __post_init__(self):
+        _chunk(self.net, "network name")
+
+    @property
+    def prefix(self) -> str:
+        return f"{ROOT}/{self.net}"
+
+    def all(self) -> str:
+        """Everything of this network: what the recorder subscribes to."""
+        return f"{self.prefix}/**"
+
+    def raw(self, sensor: str = "*") -> str:
+        return f"{self.prefix}/raw/{self._sensor(sensor)}"
+
+    def transition(self, sensor: str = "*") -> str:
+        return f"{self.prefix}/sensor/{self._sensor(sensor)}/transition"
+
+    def state(self, sensor: str = "*") -> str:
+        return f"{self.prefix}/sensor/{self._sensor(sensor)}/state"
+
+    def estimate(self, sensor: str = "*") -> str:
+        return f"{self.prefix}/peer/{self._sensor(sensor)}/estimate"
+
+    def fusion_reports(self) -> str:
+        return f"{self.prefix}/fusion/reports"
+
+    def tracks(self) -> str:
+        return f"{self.prefix}/tracks"
+
+    def laser_objects(self) -> str:
+        return f"{self.prefix}/laser/objects"
+
+    def motion_velocity(self) -> str:
+        return f"{self.prefix}/motion/velocity"
+
+    def deployment(self) -> str:
+        return f"{self.prefix}/deployment"
+
+    def clock(self) -> str:
+        return f"{self.prefix}/clock"
+
+    def eos(self) -> str:
+        return f"{self.prefix}/control/eos"
+
+    def alive(self, service: str = "*", instance: str = "*") -> str:
+        """Liveliness token key of a service instance (``*`` for any)."""
+        service = service if service == "*" else _chunk(service, "service name")
+        instance = instance if instance == "*" else _chunk(instance, "instance id")
+        return f"{self.prefix}/alive/{service}/{instance}"
+
+    @staticmethod
+    def _sensor(sensor: str) -> str:
+        return sensor if sensor == "*" else check_sensor_id(sensor)
+
+
+@dataclass(frozen=True)
+class ParsedKey:
+    """What a concrete key names: ``kind`` is one of raw, transition, state, estimate,
+    fusion_reports, tracks, laser_objects, motion_velocity, deployment, clock, eos, alive."""
+
+    net: str
+    kind: str
+    sensor: str | None = None
+    service: str | None = None
+    instance: str | None = None
+
+
+def parse_key(key: str) -> ParsedKey:
+    """Parse a concrete bintrack key; raises ValueError for anything else."""
+    parts = str(key).split("/")
+    if len(parts) < 3 or parts[0] != ROOT or not parts[1]:
+        raise ValueError(f"not a bintrack key: {key!r}")
+    net, rest = parts[1], parts[2:]
+    suffix = "/".join(rest)
+    if suffix in _FIXED:
+        return ParsedKey(net, _FIXED[suffix])
+    if len(rest) == 2 and rest[0] == "raw" and rest[1]:
+        return ParsedKey(net, "raw", sensor=rest[1])
+    if len(rest) == 3 and rest[1]:
+        for kind, (head, tail) in _PER_SENSOR.items():
+            if rest[0] == head and rest[2] == tail:
+                return ParsedKey(net, kind, sensor=rest[1])
+    if len(rest) == 3 and rest[0] == "alive" and rest[1] and rest[2]:
+        return ParsedKey(net, "alive", service=rest[1], instance=rest[2])
+    raise ValueError(f"unknown bintrack key: {key!r}")
