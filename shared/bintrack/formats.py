@@ -14,7 +14,7 @@ import re
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple
+from typing import NamedTuple, TextIO
 
 from pydantic import ValidationError
 
@@ -169,18 +169,32 @@ def _rows(path: Path, header: tuple[str, ...], required: tuple[str, ...] | None 
             raise FormatError(path, reader.line_num, "row", str(exc)) from None
 
 
-def _write_csv(path: Path, header: tuple[str, ...], rows: Iterable[Iterable[str]]) -> int:
-    """Write a CSV atomically (temporary file then rename); returns the number of rows."""
-    path = Path(path)
+def _write_csv(target: Path | str | TextIO, header: tuple[str, ...], rows: Iterable[Iterable[str]]) -> int:
+    """Write a CSV to a text stream, or atomically to a path (temporary file, then rename).
+
+    Returns the number of rows written.
+    """
+    if hasattr(target, "write"):
+        return _write_rows(target, header, rows)
+    path = Path(target)
     tmp = path.with_name(path.name + ".tmp")
+    try:
+        with open(tmp, "w", newline="", encoding="utf-8") as handle:
+            count = _write_rows(handle, header, rows)
+        tmp.replace(path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return count
+
+
+def _write_rows(handle: TextIO, header: tuple[str, ...], rows: Iterable[Iterable[str]]) -> int:
+    writer = csv.writer(handle, lineterminator="\n")
+    writer.writerow(header)
     count = 0
-    with open(tmp, "w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle, lineterminator="\n")
-        writer.writerow(header)
-        for row in rows:
-            writer.writerow(row)
-            count += 1
-    tmp.replace(path)
+    for row in rows:
+        writer.writerow(row)
+        count += 1
     return count
 
 
@@ -414,10 +428,10 @@ def write_dataset(path: Path | str, deployment: Deployment, events: Iterable[Eve
 # --------------------------------------------------------------------------- results
 
 
-def write_tracks(path: Path | str, rows: Iterable[TrackRow]) -> int:
-    """Write tracks.csv (t in s, positions in units, velocities in units/s or empty)."""
+def write_tracks(target: Path | str | TextIO, rows: Iterable[TrackRow]) -> int:
+    """Write tracks.csv (t in s, positions in units, velocities in units/s or empty) to a path or stream."""
     return _write_csv(
-        Path(path),
+        target,
         TRACKS_HEADER,
         ((fmt(r.t, 9), str(r.track), fmt(r.x), fmt(r.y), fmt(r.vx), fmt(r.vy)) for r in rows),
     )
@@ -440,9 +454,10 @@ def read_tracks(path: Path | str) -> list[TrackRow]:
     return rows
 
 
-def write_objects(path: Path | str, rows: Iterable[ObjectRow]) -> int:
+def write_objects(target: Path | str | TextIO, rows: Iterable[ObjectRow]) -> int:
+    """Write objects.csv (times in s, points in units, velocity in units/s) to a path or stream."""
     return _write_csv(
-        Path(path),
+        target,
         OBJECTS_HEADER,
         ((str(r.object), fmt(r.t_first, 9), fmt(r.t_last, 9)) + tuple(fmt(v) for v in r[3:]) for r in rows),
     )

@@ -1,0 +1,61 @@
+"""The push-style interface every tracker implements (DESIGN §2), and shared neighbourhood state."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..messages import Deployment, DiskSensor, LocalEstimate, SectorSensor, Transition
+from ..errors import CommandError
+
+
+class Tracker(Protocol):
+    """Driven alike by a file reader and by a Zenoh subscriber, in event time."""
+
+    name: str
+
+    def update(self, transition: Transition) -> list[LocalEstimate]:
+        """Take one transition (in event-time order) and return the estimates it causes."""
+
+    def flush(self, t: float) -> list[LocalEstimate]:
+        """Event time has reached ``t`` (s) with nothing more to come: return what is pending."""
+
+
+class DiskNetwork:
+    """Positions, ranges and the neighbour graph of a deployment's disk and sector sensors.
+
+    Neighbours are nodes whose sensing disks intersect (paper 001 §2): |c_i − c_j| < R_i + R_j.
+    Indices follow the order of the deployment's range sensors.
+    """
+
+    def __init__(self, deployment: Deployment, tracker_name: str):
+        sensors = [s for s in deployment.sensors if isinstance(s, (DiskSensor, SectorSensor))]
+        if not sensors:
+            raise CommandError(f"tracker {tracker_name} needs disk or sector sensors; this deployment has none")
+        self.ids = [s.id for s in sensors]
+        self.index = {sid: i for i, sid in enumerate(self.ids)}
+        self.positions = np.array([(s.x, s.y) for s in sensors], dtype=float)
+        self.ranges = np.array([s.range for s in sensors], dtype=float)
+        self._sector = np.array([isinstance(s, SectorSensor) for s in sensors])
+        tree = cKDTree(self.positions)
+        pairs = tree.query_pairs(r=2.0 * float(self.ranges.max()), output_type="ndarray")
+        gap = np.linalg.norm(self.positions[pairs[:, 0]] - self.positions[pairs[:, 1]], axis=1)
+        pairs = pairs[gap < self.ranges[pairs[:, 0]] + self.ranges[pairs[:, 1]]]
+        neighbours: list[list[int]] = [[] for _ in sensors]
+        for i, j in pairs:
+            neighbours[i].append(int(j))
+            neighbours[j].append(int(i))
+        self.neighbours = [np.array(sorted(n), dtype=int) for n in neighbours]
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def is_present(self, i: int, value: int) -> bool:
+        """Whether status ``value`` of node ``i`` means the target is in range (disk 1, sector ≥ 0)."""
+        return value >= 0 if self._sector[i] else value == 1
+
+    def neighbourhood(self, i: int) -> np.ndarray:
+        """Node ``i`` and its neighbours."""
+        return np.append(self.neighbours[i], i)

@@ -1,0 +1,53 @@
+"""Shared fixtures: small datasets written the way another program would (json + csv only)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def write_foreign_dataset(folder: Path, *, nodes: int = 200, size: float = 200.0, sensing_range: float = 20.0,
+                          speed: float = 2.0, seed: int = 1) -> Path:
+    """A uniform disk deployment with a target on y = size/2, transitions computed by hand.
+
+    Written with json and csv alone, as a program outside bintrack would.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0, size, (nodes, 2))
+    sensors = [{"id": f"n{i}", "kind": "disk", "x": float(x), "y": float(y), "range": sensing_range}
+               for i, (x, y) in enumerate(xy)]
+    (folder / "deployment.json").write_text(json.dumps({
+        "format": "bintrack.deployment/1", "name": "foreign", "units": "m",
+        "region": {"xmin": 0, "ymin": 0, "xmax": size, "ymax": size}, "sensors": sensors}))
+    x_start, x_end, y_line = 0.1 * size, 0.9 * size, size / 2
+    events = []
+    for s in sensors:
+        dy = s["y"] - y_line
+        if abs(dy) < sensing_range:
+            half = math.sqrt(sensing_range**2 - dy**2)
+            for x, value in ((s["x"] - half, 1), (s["x"] + half, 0)):
+                if x_start <= x <= x_end:
+                    events.append(((x - x_start) / speed, s["id"], value))
+    events.sort()
+    with open(folder / "events.csv", "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["t", "sensor", "value"])
+        writer.writerows((f"{t:.6f}", sid, v) for t, sid, v in events)
+    with open(folder / "truth.csv", "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["t", "target", "x", "y"])
+        writer.writerows([(0, "a", x_start, y_line), ((x_end - x_start) / speed, "a", x_end, y_line)])
+    return folder
+
+
+@pytest.fixture
+def foreign_dataset(tmp_path: Path) -> Path:
+    return write_foreign_dataset(tmp_path / "foreign")
