@@ -1,6 +1,6 @@
 """``bintrack``: the command line of DESIGN §7.
 
-Each subcommand lives in its own module exposing ``HELP``, ``add_arguments(parser)`` and
+Each subcommand lives in its own module exposing ``add_arguments(parser)`` and
 ``run(args) -> int``. Bad input (a malformed file, a bad option) prints one line to stderr
 and exits with status 2.
 """
@@ -15,34 +15,37 @@ from . import __version__
 from .errors import CommandError
 from .formats import FormatError
 
-# subcommand -> module implementing it
+# subcommand -> (module implementing it, one-line help); only the chosen module is imported
 SUBCOMMANDS = {
-    "simulate": "bintrack.sim.command",
-    "track": "bintrack.track_command",
-    "eval": "bintrack.evaluation",
-    "schema": "bintrack.schema_command",
-    "demo": "bintrack.demo",
+    "simulate": ("bintrack.sim.command", "write a simulated dataset for a named paper scenario"),
+    "track": ("bintrack.track_command", "run a tracker offline over a dataset folder and write tracks.csv"),
+    "eval": ("bintrack.evaluation", "score tracks.csv or objects.csv against the dataset's truth.csv"),
+    "schema": ("bintrack.schema_command", "print the JSON Schema of every bus message"),
+    "demo": ("bintrack.demo", "the README's main job: track the shipped 3-person dataset, print and plot"),
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(chosen: str | None = None) -> argparse.ArgumentParser:
+    """The parser; only subcommand ``chosen`` gets its options (and its module imported)."""
     parser = argparse.ArgumentParser(
         prog="bintrack",
         description="Track moving targets with networks of binary sensors.",
     )
     parser.add_argument("--version", action="version", version=f"bintrack {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name, module_name in SUBCOMMANDS.items():
-        module = importlib.import_module(module_name)
-        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
-        module.add_arguments(p)
-        p.set_defaults(_run=module.run)
+    for name, (module_name, help_text) in SUBCOMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        if name == chosen:
+            module = importlib.import_module(module_name)
+            module.add_arguments(p)
+            p.set_defaults(_run=module.run)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    chosen = next((a for a in argv if not a.startswith("-")), None)
+    args = build_parser(chosen).parse_args(argv)
     try:
         return int(args._run(args) or 0)
     except (FormatError, CommandError) as exc:

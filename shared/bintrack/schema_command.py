@@ -6,12 +6,8 @@ import argparse
 
 from .messages import json_schema_text
 
-HELP = "print the JSON Schema of every message (msgpack maps with these fields)"
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", help="write to this file instead of standard output")
-
 
 def run(args: argparse.Namespace) -> int:
     text = json_schema_text() + "\n"

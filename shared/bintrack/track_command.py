@@ -11,9 +11,6 @@ from .pipeline import output_rows, run_tracker
 from .progress import Progress
 from .trackers import TRACKER_NAMES, make_tracker
 
-HELP = "run a tracker offline over a dataset folder and write tracks.csv"
-
-
 def _positive(text: str) -> float:
     try:
         value = float(text)
@@ -22,7 +19,6 @@ def _positive(text: str) -> float:
     if not value > 0 or value == float("inf"):
         raise argparse.ArgumentTypeError(f"must be a positive number: {text!r}")
     return value
-
 
 def _window(text: str) -> int:
     try:
@@ -33,7 +29,6 @@ def _window(text: str) -> int:
         raise argparse.ArgumentTypeError("must be at least 2")
     return value
 
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", metavar="DIR", help="dataset folder (deployment.json, events.csv)")
     parser.add_argument("--tracker", required=True, choices=TRACKER_NAMES, help="tracker name")
@@ -43,7 +38,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--window", type=_window, default=10, help="line-fit: estimates in the fitted history (default: %(default)s)")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                         help="show progress on stderr (default: when stderr is a terminal)")
-
 
 def run(args: argparse.Namespace) -> int:
     dataset = open_dataset(args.dataset)

@@ -10,9 +10,10 @@ neighbourhood (n and the nodes whose disks intersect n's):
 4. ``line-fit``: the distance-weight estimates of the recent past fitted by a line; the
    current position is placed on that line using the target speed.
 
-v is given (``speed``) or, when not, estimated from the data: the mean chord of a disk
-crossed by straight lines in uniformly random position and direction is πR/2, so
-v ≈ πR / (2·mean detection duration) over the detections completed so far.
+v is given (``speed``) or, when not, estimated from the data: for distance weight, the mean
+chord of a disk crossed by straight lines in uniformly random position and direction is πR/2,
+so v ≈ πR / (2·mean detection duration) over the detections completed so far; line fit
+takes the slope of its fitted positions against time.
 """
 
 from __future__ import annotations
@@ -125,8 +126,8 @@ class LineFitTracker:
 
     The last ``window`` initial estimates are fitted by the total-least-squares line; each is
     projected onto it (arc length s_i, oriented along the motion) and the current position is
-    s̄ + v·(t − t̄) on the line, with v the target speed (fitted from s_i against t_i when no
-    speed is known yet). The estimate carries the velocity v·u.
+    s̄ + v·(t − t̄) on the line, with v the given target speed, or else the slope of s_i
+    against t_i. The estimate carries the velocity v·u.
     """
 
     name = "line-fit"
@@ -161,7 +162,7 @@ class LineFitTracker:
         slope = np.polyfit(times - times.mean(), s, 1)[0]
         if slope < 0:
             u, s, slope = -u, -s, -slope
-        speed = self.initial.speed.value if self.initial.speed.value is not None else slope
+        speed = slope if self.initial.speed.fixed is None else self.initial.speed.fixed
         along = s.mean() + speed * (t - times.mean())
         x, y = centre + along * u
         return float(x), float(y), float(speed * u[0]), float(speed * u[1])
