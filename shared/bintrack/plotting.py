@@ -28,6 +28,7 @@ if TYPE_CHECKING:
 # Above this many range sensors, their disks would hide everything else.
 MAX_RANGE_CIRCLES = 150
 
+DENSE_TRACK_ROWS = 400
 SENSOR_COLOUR = "0.55"
 DETECTED_COLOUR = "tab:orange"
 TRUTH_COLOUR = "black"
@@ -130,15 +131,17 @@ def plot_scene(path: Path | str, deployment: Deployment, *, tracks: Sequence[Tra
     _draw_sensors(ax, deployment, set(detected))
 
     for i, path_ in enumerate((truth or {}).values()):
-        ax.plot(path_.xy[:, 0], path_.xy[:, 1], linestyle="--", color=TRUTH_COLOUR, linewidth=1.2,
-                label="truth" if i == 0 else None, zorder=3)
+        ax.plot(path_.xy[:, 0], path_.xy[:, 1], linestyle="--", color=TRUTH_COLOUR, linewidth=1.6,
+                label="truth" if i == 0 else None, zorder=6)
 
     track_ids = sorted({r.track for r in tracks})
     for track, colour in zip(track_ids, _colours(len(track_ids))):
         rows = sorted((r for r in tracks if r.track == track), key=lambda r: r.t)
         label = f"track {track}" if len(track_ids) <= 10 else ("tracks" if track == track_ids[0] else None)
-        ax.plot([r.x for r in rows], [r.y for r in rows], color=colour, linewidth=1.0, marker=".",
-                markersize=3, label=label, zorder=4)
+        # a dense track is drawn as points: lines between its jumps would hide everything else
+        dense = len(rows) > DENSE_TRACK_ROWS
+        ax.plot([r.x for r in rows], [r.y for r in rows], color=colour, linewidth=0 if dense else 1.0,
+                marker=".", markersize=2 if dense else 3, alpha=0.5 if dense else 1.0, label=label, zorder=4)
 
     for obj, colour in zip(objects, _colours(len(objects))):
         ax.plot([obj.entry_x, obj.exit_x], [obj.entry_y, obj.exit_y], color=colour, linewidth=1.0, zorder=4)

@@ -20,7 +20,7 @@ class Tracker(Protocol):
         """Take one transition (in event-time order) and return the estimates it causes."""
 
     def flush(self, t: float) -> list[LocalEstimate]:
-        """Event time has reached ``t`` (s) with nothing more to come: return what is pending."""
+        """No more transitions at or before event time ``t`` (s) will come: return what is pending."""
 
 
 class DiskNetwork:
@@ -59,3 +59,33 @@ class DiskNetwork:
     def neighbourhood(self, i: int) -> np.ndarray:
         """Node ``i`` and its neighbours."""
         return np.append(self.neighbours[i], i)
+
+
+class SimultaneousTransitions:
+    """Holds back the transitions of the latest event time until time moves past it.
+
+    Transitions that share an event time are simultaneous (a field's initial state, sensors
+    sampled together), so an estimate at time t must see every status at t. A tracker applies
+    each transition's status at once but estimates for the held ones only when :meth:`due`
+    releases them: when a later transition arrives, or at ``flush``.
+    """
+
+    def __init__(self):
+        self._t: float | None = None
+        self._held: list[Transition] = []
+
+    def due(self, t: float) -> list[Transition]:
+        """Release the held transitions if a transition at event time ``t`` (s) comes after theirs."""
+        return self._release() if self._held and t > self._t else []
+
+    def flush(self, t: float) -> list[Transition]:
+        """Release the held transitions if no more can come at or before ``t`` (s)."""
+        return self._release() if self._held and t >= self._t else []
+
+    def _release(self) -> list[Transition]:
+        released, self._held = self._held, []
+        return released
+
+    def hold(self, transition: Transition) -> None:
+        self._t = transition.t
+        self._held.append(transition)

@@ -24,7 +24,7 @@ from typing import Literal
 import numpy as np
 
 from ..messages import Deployment, LocalEstimate, Transition
-from .base import DiskNetwork
+from .base import DiskNetwork, SimultaneousTransitions
 
 Weighting = Literal["equal", "distance", "duration"]
 
@@ -69,6 +69,7 @@ class WeightedCentroidTracker:
         self.present = np.zeros(len(self.net), dtype=bool)
         self.since = np.full(len(self.net), np.nan)
         self.speed = SpeedEstimate(speed)
+        self.pending = SimultaneousTransitions()
 
     def _observe(self, transition: Transition) -> int | None:
         """Update node status; returns the node index, or None for a sensor this tracker ignores."""
@@ -109,16 +110,21 @@ class WeightedCentroidTracker:
         return float(x), float(y)
 
     def update(self, transition: Transition) -> list[LocalEstimate]:
-        i = self._observe(transition)
-        if i is None:
-            return []
-        point = self.centroid(i, transition.t)
-        if point is None:
-            return []
-        return [LocalEstimate(t=transition.t, node=transition.sensor, tracker=self.name, x=point[0], y=point[1])]
+        out = self._estimates(self.pending.due(transition.t))
+        if self._observe(transition) is not None:
+            self.pending.hold(transition)
+        return out
 
     def flush(self, t: float) -> list[LocalEstimate]:
-        return []
+        return self._estimates(self.pending.flush(t))
+
+    def _estimates(self, transitions: list[Transition]) -> list[LocalEstimate]:
+        out = []
+        for tr in transitions:
+            point = self.centroid(self.net.index[tr.sensor], tr.t)
+            if point is not None:
+                out.append(LocalEstimate(t=tr.t, node=tr.sensor, tracker=self.name, x=point[0], y=point[1]))
+        return out
 
 
 class LineFitTracker:
@@ -139,16 +145,24 @@ class LineFitTracker:
         self.history: deque[tuple[float, float, float]] = deque(maxlen=window)
 
     def update(self, transition: Transition) -> list[LocalEstimate]:
-        i = self.initial._observe(transition)
-        if i is None:
-            return []
-        point = self.initial.centroid(i, transition.t)
-        if point is None:
-            return []
-        t = transition.t
-        self.history.append((t, *point))
-        x, y, vx, vy = self._refine(t, point)
-        return [LocalEstimate(t=t, node=transition.sensor, tracker=self.name, x=x, y=y, vx=vx, vy=vy)]
+        out = self._estimates(self.initial.pending.due(transition.t))
+        if self.initial._observe(transition) is not None:
+            self.initial.pending.hold(transition)
+        return out
+
+    def flush(self, t: float) -> list[LocalEstimate]:
+        return self._estimates(self.initial.pending.flush(t))
+
+    def _estimates(self, transitions: list[Transition]) -> list[LocalEstimate]:
+        out = []
+        for tr in transitions:
+            point = self.initial.centroid(self.initial.net.index[tr.sensor], tr.t)
+            if point is None:
+                continue
+            self.history.append((tr.t, *point))
+            x, y, vx, vy = self._refine(tr.t, point)
+            out.append(LocalEstimate(t=tr.t, node=tr.sensor, tracker=self.name, x=x, y=y, vx=vx, vy=vy))
+        return out
 
     def _refine(self, t: float, point: tuple[float, float]) -> tuple[float, float, float | None, float | None]:
         h = np.array(self.history)
@@ -166,6 +180,3 @@ class LineFitTracker:
         along = s.mean() + speed * (t - times.mean())
         x, y = centre + along * u
         return float(x), float(y), float(speed * u[0]), float(speed * u[1])
-
-    def flush(self, t: float) -> list[LocalEstimate]:
-        return []
