@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import metrics
+from .argtypes import positive_float
 from .errors import CommandError
 from .formats import (
     OBJECTS_HEADER,
@@ -258,20 +258,11 @@ def _object_figures(objects, truth, units) -> tuple[tuple[Figure, ...], tuple[Se
 
 # --------------------------------------------------------------------------- command
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return value
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dir", metavar="DIR", help="dataset folder (deployment.json, events.csv, truth.csv)")
     parser.add_argument("result", metavar="RESULT", help="tracks.csv or objects.csv to score")
     parser.add_argument("--plot", metavar="PNG", help="also write a PNG of sensors, detections, tracks and truth")
-    parser.add_argument("--gospa-c", type=_positive, default=DEFAULT_GOSPA_C, metavar="C",
+    parser.add_argument("--gospa-c", type=positive_float, default=DEFAULT_GOSPA_C, metavar="C",
                         help=f"GOSPA cut-off in the dataset's units (default {DEFAULT_GOSPA_C:g})")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON object")
 

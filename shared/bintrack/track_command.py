@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from .argtypes import positive_float
 from .errors import CommandError
 from .formats import open_dataset, write_tracks
 from .pipeline import output_rows, run_tracker
@@ -33,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", metavar="DIR", help="dataset folder (deployment.json, events.csv)")
     parser.add_argument("--tracker", required=True, choices=TRACKER_NAMES, help="tracker name")
     parser.add_argument("--out", default="tracks.csv", help="tracks.csv to write (default: %(default)s; '-' for stdout)")
-    parser.add_argument("--speed", type=_positive, help="target speed, units/s, for distance-weight and line-fit "
+    parser.add_argument("--speed", type=positive_float, help="target speed, units/s, for distance-weight and line-fit "
                         "(default: estimated from detection durations)")
     parser.add_argument("--window", type=_window, default=10, help="line-fit: estimates in the fitted history (default: %(default)s)")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
