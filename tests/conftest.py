@@ -51,3 +51,78 @@ def write_foreign_dataset(folder: Path, *, nodes: int = 200, size: float = 200.0
 @pytest.fixture
 def foreign_dataset(tmp_path: Path) -> Path:
     return write_foreign_dataset(tmp_path / "foreign")
+
+
+# --------------------------------------------------------------------------- live system
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@pytest.fixture
+def zenoh_router():
+    """A real Zenoh router in this process on a free loopback port; yields its endpoint."""
+    import zenoh
+
+    from bintrack.bus import router_config
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = zenoh.open(router_config([endpoint]))
+    try:
+        yield endpoint
+    finally:
+        router.close()
+
+
+class ServiceProcess:
+    """A service started as ``python -m bintrack.services.<name>``; output goes to a log file."""
+
+    def __init__(self, name: str, args: list[str], endpoint: str, log_dir: Path):
+        import subprocess
+        import sys
+
+        self.name = name
+        self.log_path = log_dir / f"{name}-{free_port()}.log"
+        self._log = open(self.log_path, "w")
+        self.proc = subprocess.Popen([sys.executable, "-m", f"bintrack.services.{name}", *args, "-e", endpoint],
+                                     stdout=self._log, stderr=subprocess.STDOUT, cwd=REPO)
+
+    @property
+    def log(self) -> str:
+        self._log.flush()
+        return self.log_path.read_text()
+
+    def wait(self, timeout: float = 60.0) -> int:
+        code = self.proc.wait(timeout=timeout)
+        self._log.close()
+        return code
+
+    def stop(self, timeout: float = 20.0) -> int:
+        """SIGTERM, then the exit status (a hang fails the test)."""
+        import signal
+
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+        return self.wait(timeout)
+
+
+@pytest.fixture
+def services(tmp_path):
+    """Start services with ``services(name, *args, endpoint=...)``; all are stopped at the end."""
+    started: list[ServiceProcess] = []
+
+    def start(name: str, *args: str, endpoint: str) -> ServiceProcess:
+        proc = ServiceProcess(name, list(args), endpoint, tmp_path)
+        started.append(proc)
+        return proc
+
+    yield start
+    for proc in started:
+        if proc.proc.poll() is None:
+            proc.proc.kill()
+            proc.proc.wait()

@@ -18,6 +18,8 @@ def test_every_key_builds_and_parses_back():
         k.clock(): ParsedKey("lab", "clock"),
         k.eos(): ParsedKey("lab", "eos"),
         k.alive("replay", "r1"): ParsedKey("lab", "alive", service="replay", instance="r1"),
+        k.progress("peer_agent", "p1"): ParsedKey("lab", "progress", service="peer_agent", instance="p1"),
+        k.done("recorder", "r"): ParsedKey("lab", "done", service="recorder", instance="r"),
     }
     assert k.transition("n1") == "bintrack/lab/sensor/n1/transition"
     assert k.eos() == "bintrack/lab/control/eos"

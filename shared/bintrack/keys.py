@@ -87,9 +87,21 @@ class Keys:
 
     def alive(self, service: str = "*", instance: str = "*") -> str:
         """Liveliness token key of a service instance (``*`` for any)."""
+        return f"{self.prefix}/alive/{self._service(service, instance)}"
+
+    def progress(self, service: str = "*", instance: str = "*") -> str:
+        """Flow control: the event time (``Clock``) a service instance has processed."""
+        return f"{self.prefix}/control/progress/{self._service(service, instance)}"
+
+    def done(self, service: str = "*", instance: str = "*") -> str:
+        """Flow control: a service instance has processed the end of stream (``EndOfStream``)."""
+        return f"{self.prefix}/control/done/{self._service(service, instance)}"
+
+    @staticmethod
+    def _service(service: str, instance: str) -> str:
         service = service if service == "*" else _chunk(service, "service name")
         instance = instance if instance == "*" else _chunk(instance, "instance id")
-        return f"{self.prefix}/alive/{service}/{instance}"
+        return f"{service}/{instance}"
 
     @staticmethod
     def _sensor(sensor: str) -> str:
@@ -99,7 +111,8 @@ class Keys:
 @dataclass(frozen=True)
 class ParsedKey:
     """What a concrete key names: ``kind`` is one of raw, transition, state, estimate,
-    fusion_reports, tracks, laser_objects, motion_velocity, deployment, clock, eos, alive."""
+    fusion_reports, tracks, laser_objects, motion_velocity, deployment, clock, eos, alive,
+    progress, done (the last two are flow control, beyond DESIGN §3)."""
 
     net: str
     kind: str
@@ -125,4 +138,6 @@ def parse_key(key: str) -> ParsedKey:
                 return ParsedKey(net, kind, sensor=rest[1])
     if len(rest) == 3 and rest[0] == "alive" and rest[1] and rest[2]:
         return ParsedKey(net, "alive", service=rest[1], instance=rest[2])
+    if len(rest) == 4 and rest[0] == "control" and rest[1] in ("progress", "done") and rest[2] and rest[3]:
+        return ParsedKey(net, rest[1], service=rest[2], instance=rest[3])
     raise ValueError(f"unknown bintrack key: {key!r}")
