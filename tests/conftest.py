@@ -94,7 +94,8 @@ class ServiceProcess:
 
     @property
     def log(self) -> str:
-        self._log.flush()
+        if not self._log.closed:
+            self._log.flush()
         return self.log_path.read_text()
 
     def wait(self, timeout: float = 60.0) -> int:

@@ -41,7 +41,8 @@ def test_round_trip(message):
 
 def test_payload_is_a_msgpack_map_with_field_names_and_version():
     payload = msgpack.unpackb(encode(SAMPLES[0]))
-    assert payload == {"version": 1, "t": 1.5, "sensor": "n1", "value": 1, "previous": 0, "seq": 3}
+    assert payload == {"version": 1, "t": 1.5, "sensor": "n1", "value": 1, "previous": 0, "seq": 3,
+                       "source": None, "source_seq": None}
 
 
 @pytest.mark.parametrize(

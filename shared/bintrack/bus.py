@@ -220,6 +220,7 @@ class Service:
         self._stop_thread = threading.Event()
         self._declared: list[Any] = []
         self._token = None
+        self.exit_status = 0
 
     # -- to override ---------------------------------------------------------------------
 
@@ -265,8 +266,8 @@ class Service:
             self.bad.report(sender, exc.reason)
             return None
 
-    def report_progress(self, t: float) -> None:
-        self.publish(self.keys.progress(self.name, self.instance), Clock(t=t))
+    def report_progress(self, t: float, sent: int | None = None) -> None:
+        self.publish(self.keys.progress(self.name, self.instance), Clock(t=t, sent=sent))
 
     def report_done(self, t: float) -> None:
         self.publish(self.keys.done(self.name, self.instance), EndOfStream(t=t))
@@ -274,6 +275,46 @@ class Service:
     def stop(self) -> None:
         self.stopping.set()
         self._stop_thread.set()
+
+    def follow_end_of_stream(self, upstream: Iterable[str], finish: Callable[[float], None]) -> None:
+        """Once ``control/eos`` has arrived and every live instance of the ``upstream`` services
+        has reported done, call ``finish(t)`` (flush, publish the last results) and report done.
+
+        Upstream instances are followed through their liveliness tokens, so a service with no
+        live upstream finishes at EOS directly.
+        """
+        assert self.session is not None and self.inbox is not None
+        tracker = UpstreamDone(upstream)
+        eos: list[float] = []
+        finished = []
+
+        def check() -> None:
+            if eos and not finished and tracker.complete:
+                finished.append(True)
+                finish(eos[0])
+                self.report_done(eos[0])
+
+        def on_alive(sample: zenoh.Sample) -> None:
+            tracker.on_liveliness(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+            check()
+
+        def on_done(sample: zenoh.Sample) -> None:
+            message = self.decode(EndOfStream, sample)
+            if message is not None:
+                parsed = parse_key(str(sample.key_expr))
+                tracker.on_done(parsed.service, parsed.instance, message.t)
+                check()
+
+        def on_eos(sample: zenoh.Sample) -> None:
+            message = self.decode(EndOfStream, sample)
+            if message is not None and not eos:
+                eos.append(message.t)
+                check()
+
+        self._declared.append(self.session.liveliness().declare_subscriber(
+            self.keys.alive(), self.inbox.callback(on_alive), history=True))
+        self.subscribe(self.keys.done(), on_done)
+        self.subscribe(self.keys.eos(), on_eos)
 
     def query(self, key_expr: str, timeout: float = 2.0) -> list[bytes]:
         """Payloads of the replies to a get on ``key_expr`` (blocking; call via to_thread)."""
@@ -321,7 +362,7 @@ class Service:
                 log.info("%s %s: ready on %s", self.name, self.instance, self.keys.prefix)
                 await self.main()
             await self.teardown()
-            return 0
+            return self.exit_status
         finally:
             self.inbox.close()
             for entity in reversed(self._declared):

@@ -22,6 +22,10 @@ SUBCOMMANDS = {
     "eval": ("bintrack.evaluation", "score tracks.csv or objects.csv against the dataset's truth.csv"),
     "schema": ("bintrack.schema_command", "print the JSON Schema of every bus message"),
     "demo": ("bintrack.demo", "the README's main job: track the shipped 3-person dataset, print and plot"),
+    "replay": ("bintrack.replay_command", "play a dataset folder or a recording onto the bus, flow-controlled"),
+    "record": ("bintrack.record_command", "record bintrack/<net>/** into an MCAP recording until stopped"),
+    "export": ("bintrack.export_command", "write a recording's tracks, estimates, objects or velocities as CSV"),
+    "watch": ("bintrack.watch_command", "print live tracks, estimates or transitions of a network until Ctrl-C"),
 }
 
 

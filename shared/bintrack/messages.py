@@ -225,15 +225,19 @@ class Transition(Message):
     value: int = Field(description="new status")
     previous: int = Field(description="status before the change")
     seq: int = Field(ge=1, description="per-sensor sequence number, 1 for the first transition")
+    source: str | None = Field(None, description="id of the sensor-agent instance that published it")
+    source_seq: int | None = Field(None, ge=1, description="that instance's count of transitions, 1 for its first")
 
 
 class SensorState(Message):
-    """Reply of a sensor's ``state`` queryable: its current status and last ``seq``."""
+    """Reply of a sensor's ``state`` queryable: its current status and last ``seq``, and the
+    recent transitions after the ``since`` seq the query asked for (to repair a gap)."""
 
     t: Seconds
     sensor: str
     value: int
     seq: int = Field(ge=0, description="seq of the last transition, 0 if none yet")
+    missed: list[Transition] = Field(default_factory=list, description="transitions after the asked seq, oldest first")
 
 
 class LocalEstimate(Message):
@@ -308,9 +312,10 @@ class VelocityEstimate(Message):
 
 
 class Clock(Message):
-    """Event time advances even when no sensor reports."""
+    """Event time advances even when no sensor reports. Also a service's progress report."""
 
     t: Seconds
+    sent: int | None = Field(None, ge=0, description="in a sensor agent's progress report: transitions it has sent so far")
 
 
 class EndOfStream(Message):

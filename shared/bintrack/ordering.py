@@ -10,15 +10,11 @@ from __future__ import annotations
 
 import heapq
 import itertools
-from typing import Generic, Protocol, TypeVar
+from collections.abc import Callable
+from operator import attrgetter
+from typing import Generic, TypeVar
 
-
-class Timed(Protocol):
-    t: float
-    sensor: str
-
-
-T = TypeVar("T", bound=Timed)
+T = TypeVar("T")
 
 
 class ReorderBuffer(Generic[T]):
@@ -28,7 +24,9 @@ class ReorderBuffer(Generic[T]):
     released: it came later than the lateness bound allowed.
     """
 
-    def __init__(self):
+    def __init__(self, tiebreak: Callable[[T], str] = attrgetter("sensor")):
+        """``tiebreak(message)`` orders messages of equal event time (default: the sensor id)."""
+        self._tiebreak = tiebreak
         self._heap: list[tuple[float, str, int, T]] = []
         self._counter = itertools.count()
         self.released_until = float("-inf")
@@ -41,7 +39,7 @@ class ReorderBuffer(Generic[T]):
         if message.t < self.released_until:
             self.late += 1
             return False
-        heapq.heappush(self._heap, (message.t, message.sensor, next(self._counter), message))
+        heapq.heappush(self._heap, (message.t, self._tiebreak(message), next(self._counter), message))
         return True
 
     def release(self, watermark: float) -> list[T]:

@@ -3,14 +3,47 @@ services run (transition detector → tracker), giving the rows of tracks.csv.""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Iterator
 
 from .formats import Dataset, TrackRow
-from .messages import LocalEstimate, TrackSet
+from .messages import LocalEstimate, Transition, TrackSet
+from .ordering import ReorderBuffer
 from .trackers import Tracker
 from .transitions import TransitionDetector
 
 SINGLE_TARGET_TRACK = 0
+
+
+class TrackerDriver:
+    """Feeds a tracker its transitions in event-time order, ties broken by sensor id.
+
+    The same object runs offline and in the live services: transitions are pushed as they
+    arrive, and ``advance(watermark)`` releases those before the watermark (s) to the tracker,
+    sorted, then lets it emit what is complete. ``finish`` releases everything at the end.
+    """
+
+    def __init__(self, tracker: Tracker):
+        self.tracker = tracker
+        self.buffer: ReorderBuffer[Transition] = ReorderBuffer()
+
+    def push(self, transition: Transition) -> bool:
+        """Hold ``transition``; False if it is later than what was already released (late)."""
+        return self.buffer.push(transition)
+
+    def advance(self, watermark: float) -> list[LocalEstimate | TrackSet]:
+        out: list[LocalEstimate | TrackSet] = []
+        for transition in self.buffer.release(watermark):
+            out.extend(self.tracker.update(transition))
+        out.extend(self.tracker.flush(math.nextafter(watermark, -math.inf)))
+        return out
+
+    def finish(self) -> list[LocalEstimate | TrackSet]:
+        out: list[LocalEstimate | TrackSet] = []
+        for transition in self.buffer.release_all():
+            out.extend(self.tracker.update(transition))
+        out.extend(self.tracker.flush(math.inf))
+        return out
 
 
 def run_tracker(dataset: Dataset, tracker: Tracker, on_event: Callable[[int], None] | None = None) -> Iterator[LocalEstimate | TrackSet]:
@@ -19,16 +52,15 @@ def run_tracker(dataset: Dataset, tracker: Tracker, on_event: Callable[[int], No
     ``on_event(count)`` is called after each event (for progress display).
     """
     detector = TransitionDetector(dataset.deployment)
-    last_t = None
+    driver = TrackerDriver(tracker)
     for count, event in enumerate(dataset.events(), start=1):
-        last_t = event.t
         transition = detector.update(event)
         if transition is not None:
-            yield from tracker.update(transition)
+            yield from driver.advance(transition.t)
+            driver.push(transition)
         if on_event is not None:
             on_event(count)
-    if last_t is not None:
-        yield from tracker.flush(last_t)
+    yield from driver.finish()
 
 
 def output_rows(outputs: Iterable[LocalEstimate | TrackSet]) -> Iterator[TrackRow]:

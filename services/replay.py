@@ -1,0 +1,296 @@
+"""Replay: plays a dataset folder or a recording onto the bus (DESIGN §1, §3), flow-controlled.
+
+    python -m bintrack.services.replay SOURCE [--speed X] [--loop] [--clock-period S]
+        [--max-ahead N] [--wait-for SERVICE[,SERVICE…]] [--ready-timeout S] [--keys KEYEXPR]…
+        [-m MODE] [-e ENDPOINT]… [-l ENDPOINT]… [-c FILE] [--cfg KEY:VALUE]… [--net NAME]
+
+Serves the ``deployment`` queryable, waits for the ``--wait-for`` services, then executes
+:func:`bintrack.replay_schedule.schedule`: a dataset's events as ``RawSample`` on
+``raw/<sensor>``, a recording's samples on their recorded keys with the payload bytes
+unchanged; ``Clock`` ticks on ``clock``, each published only once every live consumer (any
+service holding an ``alive/`` token, replays excepted) has reported progress up to the tick
+``--max-ahead`` before it; at the end ``EndOfStream`` on ``control/eos``. Exits 0 after the
+(last) end of stream, 1 if the awaited services never came, 2 for a bad source.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import math
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+import zenoh
+
+from bintrack.bus import Service, add_bus_arguments, service_main
+from bintrack.errors import CommandError
+from bintrack.formats import FormatError, open_dataset
+from bintrack.keys import Keys, parse_key
+from bintrack.messages import Clock, EndOfStream, RawSample, encode
+from bintrack.recording import Record, open_recording, replay_items, shift_payload
+from bintrack.replay_schedule import Consumers, End, Pacer, Publish, Tick, schedule
+
+log = logging.getLogger("bintrack")
+
+PROGRESS_INTERVAL = 5.0  # s of wall clock between progress lines
+
+
+def _speed(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
+    return value
+
+
+def _positive(text: str) -> float:
+    value = _speed(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return value
+
+
+def _ticks_ahead(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
+    return value
+
+
+def _key_expr(text: str) -> str:
+    try:
+        return str(zenoh.KeyExpr(text))
+    except Exception as exc:  # zenoh.ZError
+        raise argparse.ArgumentTypeError(f"not a key expression: {text!r} ({exc})") from None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("source", metavar="SOURCE", help="dataset folder, or a recording (FILE.mcap)")
+    parser.add_argument("--speed", type=_speed, default=1.0, metavar="X",
+                        help="event time runs X times real time; 0 = as fast as flow control allows (default: %(default)s)")
+    parser.add_argument("--loop", action="store_true",
+                        help="play again after the end, shifted in event time so that it keeps increasing")
+    parser.add_argument("--clock-period", type=_positive, default=0.5, metavar="S",
+                        help="event time between clock ticks, s (default: %(default)s)")
+    parser.add_argument("--max-ahead", type=_ticks_ahead, default=1, metavar="N",
+                        help="clock ticks that may be unacknowledged by the slowest service (default: %(default)s)")
+    parser.add_argument("--wait-for", action="append", default=[], metavar="SERVICE[,SERVICE…]",
+                        help="publish nothing until each of these services holds a liveliness token; repeatable")
+    parser.add_argument("--ready-timeout", type=_positive, default=60.0, metavar="S",
+                        help="how long to wait for the --wait-for services, s (default: %(default)s)")
+    parser.add_argument("--keys", action="append", default=[], type=_key_expr, metavar="KEYEXPR",
+                        help="replay only samples whose recorded key matches, repeatable, e.g. 'bintrack/*/raw/**' "
+                        "(clock ticks are always replayed)")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    add_bus_arguments(parser, net_default=None)
+    parser.epilog = ("--net defaults to the deployment's name for a dataset and to the recorded network for a "
+                     "recording (whose keys are then moved to --net).")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m bintrack.services.replay",
+                                     description="Play a dataset or a recording onto the bus, flow-controlled.")
+    add_arguments(parser)
+    return parser
+
+
+class Replay(Service):
+    """The replay service; raises FormatError/CommandError on construction for a bad source."""
+
+    name = "replay"
+
+    def __init__(self, args: argparse.Namespace):
+        path = Path(args.source)
+        if path.suffix == ".mcap":
+            self.recording, self.dataset = open_recording(path), None
+            self.deployment, source_net = self.recording.deployment, self.recording.net
+            self.total = None
+        else:
+            self.recording, self.dataset = None, open_dataset(path)
+            self.deployment = self.dataset.deployment
+            source_net = self.deployment.name
+            self.total = sum(1 for _ in self.dataset.events())  # validates every row before anything is published
+        args.net = args.net or source_net
+        try:
+            Keys(args.net)
+        except ValueError as exc:
+            raise CommandError(f"{exc}; give a network name with --net") from None
+        super().__init__(args)
+        self.source_prefix = Keys(self.recording.net).prefix if self.recording is not None else None
+        self.wanted = list(dict.fromkeys(name.strip() for item in args.wait_for for name in item.split(",") if name.strip()))
+        self.filters = [zenoh.KeyExpr(k) for k in args.keys]
+        self._matches: dict[str, bool] = {}
+        self.alive: set[tuple[str, str]] = set()
+        self.consumers = Consumers()
+        self.last_tick: float | None = None
+        self.published = 0
+        self._changed = asyncio.Event()
+
+    # -- bus wiring -------------------------------------------------------------------------
+
+    async def setup(self) -> None:
+        payload = encode(self.deployment)
+        self.serve(self.keys.deployment(), lambda query: query.reply(self.keys.deployment(), payload))
+        self._declared.append(self.session.liveliness().declare_subscriber(
+            self.keys.alive(), self.inbox.callback(self._on_alive)))
+        self.subscribe(self.keys.progress(), self._on_progress)
+        # The services already up: asked once, after subscribing so that none is missed.
+        for sample in await asyncio.to_thread(self._alive_now):
+            self._on_alive(sample)
+
+    def _alive_now(self) -> list[zenoh.Sample]:
+        replies = self.session.liveliness().get(self.keys.alive(), timeout=5.0)
+        return [reply.ok for reply in replies if reply.ok is not None]
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        try:
+            parsed = parse_key(str(sample.key_expr))
+        except ValueError:
+            return
+        entry = (parsed.service, parsed.instance)
+        if sample.kind == zenoh.SampleKind.PUT:
+            self.alive.add(entry)
+            if parsed.service != self.name:
+                self.consumers.appeared(entry, self.last_tick)
+        else:
+            self.alive.discard(entry)
+            self.consumers.vanished(entry)
+        self._changed.set()
+
+    def _on_progress(self, sample: zenoh.Sample) -> None:
+        message = self.decode(Clock, sample)
+        if message is not None:
+            parsed = parse_key(str(sample.key_expr))
+            self.consumers.reported((parsed.service, parsed.instance), message.t)
+            self._changed.set()
+
+    def stop(self) -> None:
+        super().stop()
+        self._changed.set()
+
+    def _put(self, key: str, payload: bytes) -> None:
+        self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+
+    # -- the source -------------------------------------------------------------------------
+
+    def _keep(self, key: str) -> bool:
+        if not self.filters:
+            return True
+        if key not in self._matches:
+            self._matches[key] = any(f.intersects(zenoh.KeyExpr(key)) for f in self.filters)
+        return self._matches[key]
+
+    def _pass(self) -> Iterable[tuple[float, object]]:
+        if self.dataset is not None:
+            return ((e.t, e) for e in self.dataset.events() if self._keep(self.keys.raw(e.sensor)))
+        return replay_items(self.recording, self._keep)
+
+    def _publish(self, action: Publish) -> None:
+        item = action.item
+        if isinstance(item, Record):
+            self._put(self.keys.prefix + item.key[len(self.source_prefix):], shift_payload(item.payload, action.shift))
+        else:
+            self._put(self.keys.raw(item.sensor), encode(RawSample(t=action.t, sensor=item.sensor, value=item.value)))
+        self.published += 1
+
+    # -- the run ----------------------------------------------------------------------------
+
+    async def _until(self, condition: Callable[[], bool], waiting_for: Callable[[], str],
+                     timeout: float | None = None) -> bool:
+        """Wait until ``condition()`` holds (True), the service stops or ``timeout`` s pass (False);
+        says what it waits for every few seconds."""
+        start = last_said = time.monotonic()
+        while not condition():
+            if self.stopping.is_set():
+                return False
+            now = time.monotonic()
+            if timeout is not None and now - start >= timeout:
+                return False
+            if now - last_said >= PROGRESS_INTERVAL:
+                log.info("replay: waiting for %s", waiting_for())
+                last_said = now
+            self._changed.clear()
+            try:
+                await asyncio.wait_for(self._changed.wait(), 1.0)
+            except TimeoutError:
+                pass
+        return True
+
+    async def _acknowledged(self, ack: float) -> bool:
+        return await self._until(lambda: not self.consumers.owing(ack),
+                                 lambda: f"progress >= {ack:g} s from "
+                                 + ", ".join(f"{s}/{i}" for s, i in self.consumers.owing(ack)))
+
+    async def main(self) -> None:
+        if self.wanted:
+            def missing() -> list[str]:
+                return [w for w in self.wanted if not any(service == w for service, _ in self.alive)]
+            if not await self._until(lambda: not missing(), lambda: "services " + ", ".join(missing()),
+                                     self.args.ready_timeout):
+                if not self.stopping.is_set():
+                    log.error("replay: no liveliness token from %s on %s after %g s; is it running on this network?",
+                              ", ".join(missing()), self.keys.alive(), self.args.ready_timeout)
+                    self.exit_status = 1
+                return
+        try:
+            await self._play()
+        except ValueError as exc:  # FormatError, NothingToReplay, a recorded payload that is not msgpack
+            log.error("replay: %s", exc)
+            self.exit_status = 2
+
+    async def _play(self) -> None:
+        pacer = Pacer(self.args.speed)
+        plan = schedule(self._pass, period=self.args.clock_period, max_ahead=self.args.max_ahead,
+                        recorded_ticks=self.recording is not None, loop=self.args.loop)
+        started = last_said = time.monotonic()
+        for action in plan:
+            if not isinstance(action, Publish) and action.ack is not None:
+                if not await self._acknowledged(action.ack):
+                    break
+            if isinstance(action, End):
+                self._put(self.keys.eos(), encode(EndOfStream(t=action.t)))
+                log.info("replay: end of stream at t=%g s after %d samples", action.t, self.published)
+                if action.last:
+                    return
+                continue
+            delay = pacer.delay(action.t, time.monotonic())
+            if delay > 0:
+                try:
+                    await asyncio.wait_for(self.stopping.wait(), delay)
+                except TimeoutError:
+                    pass
+            if self.stopping.is_set():
+                break
+            if isinstance(action, Tick):
+                self._put(self.keys.clock(), encode(Clock(t=action.t)))
+                self.last_tick = action.t
+                await asyncio.sleep(0)  # let signals and progress reports in
+            else:
+                self._publish(action)
+            now = time.monotonic()
+            if now - last_said >= PROGRESS_INTERVAL:
+                total = f"/{self.total}" if self.total and not self.args.loop else ""
+                log.info("replay: %d%s samples published, event time %.3f s, %.0f samples/s",
+                         self.published, total, action.t, self.published / (now - started))
+                last_said = now
+        log.info("replay: stopped after %d samples", self.published)
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        return service_main(Replay, build_parser, argv)
+    except (FormatError, CommandError) as exc:
+        log.error("replay: %s", exc)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

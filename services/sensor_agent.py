@@ -1,0 +1,179 @@
+"""Sensor agent: raw samples of its sensors → transitions (papers 000, 001).
+
+``python -m bintrack.services.sensor_agent [--sensors ID,…]`` hosts any number of a
+deployment's sensors (all by default), each as an asyncio task with a bounded queue. A sensor
+publishes a ``Transition`` on ``sensor/<id>/transition`` only when its status changes, and
+answers its ``sensor/<id>/state`` queryable with its status, last ``seq`` and, for a query
+``…/state?since=N``, the recent transitions after seq N so a receiver can repair a gap.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+from collections import deque
+
+import zenoh
+
+from bintrack.bus import Service, add_bus_arguments, log, service_main
+from bintrack.formats import Event, check_value
+from bintrack.keys import parse_key
+from bintrack.messages import Clock, EndOfStream, RawSample, SensorState, Transition, encode
+from bintrack.transitions import TransitionDetector
+
+HISTORY = 256  # transitions kept per sensor for gap repair
+QUEUE = 1024  # raw samples queued per sensor
+
+
+class HostedSensor:
+    """One sensor's task: its samples in arrival order → transitions, and its recent history."""
+
+    def __init__(self, sensor_id: str, detector: TransitionDetector, agent: "SensorAgent"):
+        self.id = sensor_id
+        self.detector = detector
+        self.agent = agent
+        self.queue: asyncio.Queue[RawSample] = asyncio.Queue(QUEUE)
+        self.history: deque[Transition] = deque(maxlen=HISTORY)
+        self.last_t = float("-inf")
+        self.key = agent.keys.transition(sensor_id)
+
+    async def run(self) -> None:
+        while True:
+            sample = await self.queue.get()
+            try:
+                self.handle(sample)
+            finally:
+                self.queue.task_done()
+
+    def handle(self, sample: RawSample) -> None:
+        if sample.t < self.last_t:
+            self.agent.bad.report(self.agent.keys.raw(self.id), f"out of order: t={sample.t} after t={self.last_t}")
+            return
+        self.last_t = sample.t
+        transition = self.detector.update(Event(sample.t, self.id, sample.value))
+        if transition is None:
+            return
+        self.agent.sent += 1
+        transition = transition.model_copy(update={"source": self.agent.instance, "source_seq": self.agent.sent})
+        self.history.append(transition)
+        if self.agent.args.lose and self.agent.sent % self.agent.args.lose == 0:
+            return  # --lose: a lossy link for tests; the receivers must repair the gap
+        self.agent.publish(self.key, transition)
+
+    def state(self, since: int | None, after_source_seq: int | None) -> SensorState:
+        """Status and seq; ``missed``: transitions with seq > ``since`` or source_seq > ``after_source_seq``."""
+        value, seq = self.detector.status(self.id)
+        missed = [tr for tr in self.history
+                  if (since is not None and tr.seq > since)
+                  or (after_source_seq is not None and tr.source_seq > after_source_seq)]
+        return SensorState(t=self.last_t if self.last_t > float("-inf") else 0.0, sensor=self.id,
+                           value=value, seq=seq, missed=missed)
+
+
+class SensorAgent(Service):
+    name = "sensor_agent"
+
+    async def setup(self) -> None:
+        deployment = await self.wait_for_deployment()
+        if deployment is None:
+            return
+        self.sensors = deployment.by_id()
+        hosted = self.args.sensors.split(",") if self.args.sensors else list(self.sensors)
+        unknown = [s for s in hosted if s not in self.sensors]
+        if unknown:
+            log.error("%s: --sensors names ids not in the deployment: %s", self.name, ", ".join(unknown))
+            self.exit_status = 2
+            self.stop()
+            return
+        detector = TransitionDetector(deployment, hosted)
+        self.sent = 0
+        self.hosted = {sid: HostedSensor(sid, detector, self) for sid in hosted}
+        self.tasks = [asyncio.create_task(h.run(), name=f"sensor {h.id}") for h in self.hosted.values()]
+        self.control: asyncio.Queue = asyncio.Queue()
+        self.tasks.append(asyncio.create_task(self._control(), name="control"))
+        self.subscribe(self.keys.raw(), self.on_raw)
+        self.subscribe(self.keys.clock(), lambda s: self._queue_control(Clock, s))
+        self.subscribe(self.keys.eos(), lambda s: self._queue_control(EndOfStream, s))
+        self.serve(self.keys.state(), self.on_state)
+
+    def on_raw(self, sample: zenoh.Sample) -> None:
+        raw = self.decode(RawSample, sample)
+        if raw is None:
+            return
+        key = str(sample.key_expr)
+        if parse_key(key).sensor != raw.sensor:
+            self.bad.report(key, f"payload names sensor {raw.sensor!r}")
+            return
+        sensor = self.sensors.get(raw.sensor)
+        if sensor is None:
+            self.bad.report(key, f"unknown sensor id {raw.sensor!r}")
+            return
+        problem = check_value(sensor, raw.value)
+        if problem:
+            self.bad.report(key, problem)
+            return
+        hosted = self.hosted.get(raw.sensor)
+        if hosted is None:
+            return  # another agent's sensor
+        try:
+            hosted.queue.put_nowait(raw)
+        except asyncio.QueueFull:
+            self.bad.report(key, "queue full: sample dropped")
+
+    def _queue_control(self, cls, sample: zenoh.Sample) -> None:
+        message = self.decode(cls, sample)
+        if message is not None:
+            self.control.put_nowait(message)
+
+    async def _control(self) -> None:
+        """Clock ticks and EOS are acknowledged once every sensor has handled what came before."""
+        while True:
+            message = await self.control.get()
+            await asyncio.gather(*(h.queue.join() for h in self.hosted.values() if h.queue.qsize()))
+            if isinstance(message, Clock):
+                self.report_progress(message.t, sent=self.sent)
+            else:
+                self.report_done(message.t)
+
+    def on_state(self, query: zenoh.Query) -> None:
+        """``…/state``; ``?since=N``: also the transitions after seq N; ``?source=ID;after=N``:
+        also those this instance (ID) sent after its source_seq N (nothing if ID is another)."""
+        try:
+            since = _optional_int(query.parameters.get("since"))
+            after = _optional_int(query.parameters.get("after"))
+        except ValueError:
+            query.reply_err(b"since and after must be integers")
+            return
+        source = query.parameters.get("source")
+        if source is not None and source != self.instance:
+            return
+        for sensor_id, hosted in self.hosted.items():
+            key = self.keys.state(sensor_id)
+            if zenoh.KeyExpr(key).intersects(query.key_expr):
+                state = hosted.state(since, after)
+                if source is None or state.missed:
+                    query.reply(key, encode(state))
+
+    async def teardown(self) -> None:
+        for task in getattr(self, "tasks", []):
+            task.cancel()
+        await asyncio.gather(*getattr(self, "tasks", []), return_exceptions=True)
+
+
+def _optional_int(text: str | None) -> int | None:
+    return None if text is None else int(text)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m bintrack.services.sensor_agent", description=__doc__.splitlines()[0])
+    parser.add_argument("--sensors", metavar="ID,…", help="sensor ids to host (default: every sensor of the deployment)")
+    parser.add_argument("--id", help="instance id (default: host-pid)")
+    parser.add_argument("--lose", type=int, default=0, metavar="N",
+                        help="testing: do not publish every Nth transition (a lossy link); receivers repair the gaps")
+    add_bus_arguments(parser)
+    return parser
+
+
+if __name__ == "__main__":
+    sys.exit(service_main(SensorAgent, build_parser))

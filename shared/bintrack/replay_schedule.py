@@ -1,0 +1,169 @@
+"""What replay publishes and when, as pure objects (no Zenoh, no wall clock of its own).
+
+:func:`schedule` turns the items of a source (dataset events or recorded samples, each with
+its event time) into a sequence of actions: :class:`Publish` an item, :class:`Tick` the clock,
+:class:`End` of stream. Flow control is expressed in the actions: a tick carries the event
+time every consumer must have acknowledged before it goes out, so at most ``max_ahead`` ticks
+are unacknowledged. :class:`Pacer` says how long to wait on the wall clock for a given speed;
+:class:`Consumers` tracks who must acknowledge what. The replay service only executes these.
+
+Ticks of a dataset are on a grid: t0 + k·period with t0 the first event time floored to the
+period; tick T is published once every event with t < T is (an event at exactly T follows
+it). The last tick of a pass is the first grid point past the last event. A recording brings
+its own ticks; a final one is added when none lies past its last item. With ``loop`` every
+pass after the first is shifted in event time by (last tick − start of the pass + period), so
+event time keeps increasing and the grid continues.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable, Hashable, Iterable, Iterator
+from dataclasses import dataclass
+from typing import Generic, TypeVar
+
+T = TypeVar("T")
+
+
+class NothingToReplay(ValueError):
+    """A pass of the source had no item to publish."""
+
+
+@dataclass(frozen=True)
+class Publish(Generic[T]):
+    """Publish ``item`` at event time ``t`` (s, shifted); ``shift`` (s) is what the pass adds to
+    the item's own times (0 in the first pass)."""
+
+    t: float
+    item: T
+    shift: float
+
+
+@dataclass(frozen=True)
+class Tick:
+    """Publish a clock tick at event time ``t`` (s), once every consumer has reported progress
+    ≥ ``ack`` (s); ``ack`` is None when no acknowledgement is due yet."""
+
+    t: float
+    ack: float | None
+
+
+@dataclass(frozen=True)
+class End:
+    """Publish end of stream at event time ``t`` (s, the pass's last item), once every consumer
+    has acknowledged the pass's final tick ``ack`` (s). ``last`` is False when another pass follows."""
+
+    t: float
+    ack: float
+    last: bool
+
+
+Action = Publish | Tick | End
+
+
+def schedule(passes: Callable[[], Iterable[tuple[float, T | None]]], *, period: float, max_ahead: int = 1,
+             recorded_ticks: bool = False, loop: bool = False) -> Iterator[Action]:
+    """The replay's actions, in order.
+
+    ``passes()`` gives one pass of the source as (event time s, item) pairs in time order;
+    with ``recorded_ticks``, a pair whose item is None is a recorded clock tick at that time,
+    otherwise ticks are made on the ``period`` grid (s). ``max_ahead`` ≥ 1 ticks may be
+    unacknowledged. ``loop`` repeats the source forever, shifted in time. Raises
+    :class:`NothingToReplay` when a pass has no item.
+    """
+    if not (period > 0 and math.isfinite(period)):
+        raise ValueError(f"clock period must be a positive number of seconds, got {period!r}")
+    if max_ahead < 1:
+        raise ValueError(f"max_ahead must be at least 1, got {max_ahead!r}")
+    published: deque[float] = deque(maxlen=max_ahead)
+    shift = 0.0
+
+    def tick(t: float) -> Tick:
+        action = Tick(t + shift, published[0] if len(published) == max_ahead else None)
+        published.append(t + shift)
+        return action
+
+    while True:
+        start = last_item = last_tick = None
+        grid = 0  # index of the next grid tick (dataset sources)
+        for t, item in passes():
+            if start is None:
+                grid = math.floor(t / period)
+                start = t if recorded_ticks else grid * period
+            if recorded_ticks:
+                if item is None:
+                    if last_tick is None or t > last_tick:
+                        last_tick = t
+                        yield tick(t)
+                    continue
+            else:
+                while grid * period <= t:
+                    last_tick = grid * period
+                    yield tick(last_tick)
+                    grid += 1
+            last_item = t
+            yield Publish(t + shift, item, shift)
+        if last_item is None:
+            raise NothingToReplay("nothing to replay")
+        if last_tick is None or last_tick <= last_item:
+            final = (math.floor(last_item / period) + 1) * period
+            last_tick = final if last_tick is None else max(final, last_tick + period)
+            yield tick(last_tick)
+        yield End(last_item + shift, last_tick + shift, not loop)
+        if not loop:
+            return
+        shift += last_tick - start + period
+
+
+class Pacer:
+    """Wall-clock pacing at ``speed`` × real time: the first action's event time is due at once,
+    a later event time t at (t − t_first)/speed seconds after it. ``speed`` 0 = no pacing."""
+
+    def __init__(self, speed: float):
+        if not (speed >= 0 and math.isfinite(speed)):
+            raise ValueError(f"speed must be a finite number >= 0, got {speed!r}")
+        self.speed = speed
+        self._origin: tuple[float, float] | None = None
+
+    def delay(self, t: float, now: float) -> float:
+        """Seconds to wait, from wall-clock time ``now`` (s, monotonic), before event time ``t``
+        (s) is due; 0 when it is due already (after a stall, replay catches up)."""
+        if self.speed == 0:
+            return 0.0
+        if self._origin is None:
+            self._origin = (t, now)
+        t0, wall0 = self._origin
+        return max(0.0, wall0 + (t - t0) / self.speed - now)
+
+
+class Consumers:
+    """The live consumers of a replay and the progress (event time, s) each has reported.
+
+    A consumer owes the acknowledgement of a tick only if it was live when the tick was
+    published: one that appears later is not waited for on ticks it never saw.
+    """
+
+    def __init__(self):
+        self._joined_after: dict[Hashable, float] = {}
+        self._progress: dict[Hashable, float] = {}
+
+    def __len__(self) -> int:
+        return len(self._joined_after)
+
+    def appeared(self, consumer: Hashable, last_tick: float | None) -> None:
+        """``consumer`` became live when ``last_tick`` (s, None before any) was the last tick out."""
+        self._joined_after.setdefault(consumer, -math.inf if last_tick is None else last_tick)
+
+    def vanished(self, consumer: Hashable) -> None:
+        self._joined_after.pop(consumer, None)
+        self._progress.pop(consumer, None)
+
+    def reported(self, consumer: Hashable, t: float) -> None:
+        """``consumer`` has processed every tick up to event time ``t`` (s)."""
+        self._progress[consumer] = max(t, self._progress.get(consumer, -math.inf))
+
+    def owing(self, ack: float) -> list[Hashable]:
+        """The live consumers that have not yet acknowledged the tick at ``ack`` (s)."""
+        return [c for c, joined_after in self._joined_after.items()
+                if joined_after < ack and self._progress.get(c, -math.inf) < ack]
