@@ -2,7 +2,9 @@
 asyncio, and the runtime every service shares (liveliness, bad payloads, progress, shutdown).
 
 Zenoh callbacks run on Zenoh's threads; they must neither block nor call the Zenoh API
-(DESIGN §3). They hand each sample to the service's asyncio loop with
+(DESIGN §3). A service subscribes once, to its whole network, so that each publisher's
+messages reach it in the order they were sent (see :meth:`Service.subscribe`), and the
+callback hands each sample to the service's asyncio loop with
 ``loop.call_soon_threadsafe`` through an :class:`Inbox` that holds at most ``capacity``
 samples in flight: past that, a sample is dropped and counted instead of queued without
 bound. A dropped transition shows as a ``seq`` gap, which the receiver repairs from the
@@ -219,6 +221,8 @@ class Service:
         self.stopping = asyncio.Event()
         self._stop_thread = threading.Event()
         self._declared: list[Any] = []
+        self._routes: list[tuple[zenoh.KeyExpr, Callable[[zenoh.Sample], None]]] = []
+        self._network_subscriber = None
         self._token = None
         self.exit_status = 0
 
@@ -237,8 +241,26 @@ class Service:
     # -- helpers ---------------------------------------------------------------------------
 
     def subscribe(self, key_expr: str, handler: Callable[[zenoh.Sample], None]) -> None:
+        """Call ``handler`` on the asyncio loop for every sample whose key ``key_expr`` includes.
+
+        A service has one Zenoh subscriber, on its whole network (``bintrack/<net>/**``), and
+        routes samples to handlers itself: Zenoh delivers one subscriber's samples in the order
+        each publisher sent them, but calls different subscribers from different threads, so
+        separate subscribers could see a publisher's messages on two keys swapped.
+        """
         assert self.session is not None and self.inbox is not None
-        self._declared.append(self.session.declare_subscriber(key_expr, self.inbox.callback(handler)))
+        pattern = zenoh.KeyExpr(key_expr)
+        if not zenoh.KeyExpr(self.keys.all()).includes(pattern):
+            raise ValueError(f"{key_expr} is outside this service's network {self.keys.all()}")
+        self._routes.append((pattern, handler))
+        if self._network_subscriber is None:
+            self._network_subscriber = self.session.declare_subscriber(self.keys.all(), self.inbox.callback(self._route))
+            self._declared.append(self._network_subscriber)
+
+    def _route(self, sample: zenoh.Sample) -> None:
+        for pattern, handler in self._routes:
+            if pattern.includes(sample.key_expr):
+                handler(sample)
 
     def serve(self, key_expr: str, handler: Callable[[zenoh.Query], None]) -> None:
         """A queryable whose queries are answered on the asyncio loop; each query is dropped

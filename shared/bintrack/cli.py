@@ -21,6 +21,7 @@ SUBCOMMANDS = {
     "track": ("bintrack.track_command", "run a tracker offline over a dataset folder and write tracks.csv"),
     "eval": ("bintrack.evaluation", "score tracks.csv or objects.csv against the dataset's truth.csv"),
     "schema": ("bintrack.schema_command", "print the JSON Schema of every bus message"),
+    "up": ("bintrack.up", "the whole stack on this machine: router, services, and the replay of DIR"),
     "demo": ("bintrack.demo", "the README's main job: track the shipped 3-person dataset, print and plot"),
     "replay": ("bintrack.replay_command", "play a dataset folder or a recording onto the bus, flow-controlled"),
     "record": ("bintrack.record_command", "record bintrack/<net>/** into an MCAP recording until stopped"),

@@ -1,22 +1,25 @@
 """``bintrack demo``: the README's main job.
 
-Tracks the shipped DARPA-style 3-person dataset, prints the final track table and the metrics,
-and writes a PNG of sensors, detections, tracks and truth. Until the live system lands it runs
-the offline pipeline (the same tracker objects the services will run).
+Starts the embedded stack (``bintrack up``: a router in this process, every service as a
+subprocess), replays the shipped DARPA-style 3-person dataset faster than real time while
+recording everything, then exports the tracks from the recording, prints the final track
+table and the metrics against truth, and writes a PNG of sensors, detections, tracks and truth.
 """
 
 from __future__ import annotations
 
 import argparse
+import socket
 from pathlib import Path
 
+from . import up
 from .errors import CommandError
 from .evaluation import evaluate
+from .export_command import track_rows
 from .formats import TrackRow, fmt, open_dataset, write_tracks
-from .pipeline import output_rows, run_tracker
 from .plotting import plot_evaluation
-from .progress import Progress
-from .trackers import TRACKER_NAMES, make_tracker
+from .recording import open_recording
+from .trackers import TRACKER_NAMES
 
 SHIPPED_DATASET = Path(__file__).resolve().parents[2] / "datasets" / "darpa-grid-3"
 # The best tracker available for this dataset; paper 001 §5.3.2 finds equal weight the best baseline.
@@ -27,8 +30,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dataset", type=Path, default=SHIPPED_DATASET,
                         help="dataset folder (default: the shipped darpa-grid-3)")
     parser.add_argument("--tracker", choices=TRACKER_NAMES, default=DEMO_TRACKER, help="tracker (default: %(default)s)")
+    parser.add_argument("--speed", type=float, default=0.0,
+                        help="replay speed; 0 = as fast as the services keep up (default: %(default)s)")
     parser.add_argument("--out", type=Path, default=Path("out/demo"),
-                        help="folder for tracks.csv and demo.png (default: %(default)s)")
+                        help="folder for recording.mcap, tracks.csv and demo.png (default: %(default)s)")
 
 
 def final_table(rows: list[TrackRow], last: int = 10) -> list[str]:
@@ -40,17 +45,27 @@ def final_table(rows: list[TrackRow], last: int = 10) -> list[str]:
     return lines
 
 
+def _free_endpoint() -> str:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{sock.getsockname()[1]}"
+
+
 def run(args: argparse.Namespace) -> int:
     if not (args.dataset / "deployment.json").exists():
         raise CommandError(f"no dataset at {args.dataset} (run `make datasets`, or pass --dataset DIR)")
     dataset = open_dataset(args.dataset)
     args.out.mkdir(parents=True, exist_ok=True)
+    recording = args.out / "recording.mcap"
     print(f"bintrack demo: {dataset.deployment.name}, {len(dataset.deployment.sensors)} sensors, "
-          f"tracker {args.tracker} (offline pipeline)")
-    tracker = make_tracker(args.tracker, dataset.deployment)
-    progress = Progress("events", enabled=None)
-    rows = list(output_rows(run_tracker(dataset, tracker, on_event=progress.update)))
-    progress.close()
+          f"tracker {args.tracker}, live stack at speed {args.speed:g} (0 = as fast as it keeps up)")
+    stack = argparse.Namespace(source=str(args.dataset), tracker=args.tracker, speed=args.speed, loop=False,
+                               record=str(recording), exit_at_end=True, listen=_free_endpoint(), net=None,
+                               progress_interval=1.0)
+    status = up.run(stack)
+    if status != 0:
+        return status
+    rows = track_rows(open_recording(recording), "tracks")
     tracks_path = args.out / "tracks.csv"
     write_tracks(tracks_path, rows)
     print(f"\nfinal track table ({len(rows)} rows in {tracks_path}; last {min(10, len(rows))} shown):")
@@ -59,5 +74,5 @@ def run(args: argparse.Namespace) -> int:
     print("\nmetrics against truth.csv:")
     print("\n".join(evaluation.lines()))
     png = plot_evaluation(args.out / "demo.png", dataset, evaluation)
-    print(f"\nplot: {png}")
+    print(f"\nrecording: {recording}\nplot: {png}")
     return 0

@@ -1,0 +1,186 @@
+"""Live equals offline: the whole stack on Zenoh gives the rows `bintrack track` gives."""
+
+from __future__ import annotations
+
+import json
+import random
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+import zenoh
+
+from bintrack import cli
+from bintrack.bus import router_config
+from bintrack.formats import (
+    TruthRow,
+    open_dataset,
+    read_tracks,
+    write_dataset,
+)
+from bintrack.keys import Keys
+from bintrack.messages import Clock, EndOfStream, decode, encode
+from bintrack.pipeline import output_rows, run_tracker
+from bintrack.recording import open_recording
+from bintrack.export_command import track_rows
+from bintrack.stack import stack_commands
+from bintrack.trackers import BASELINES, make_tracker
+from bintrack.transitions import TransitionDetector
+
+from conftest import REPO, free_port
+
+DARPA3 = REPO / "datasets" / "darpa-grid-3"
+
+
+def bintrack(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "bintrack.cli", *args], capture_output=True, text=True,
+                          timeout=timeout, cwd=REPO)
+
+
+def live_and_offline(dataset: Path, tracker: str, tmp: Path, speed: str = "0") -> None:
+    """`up --exit-at-end` + `export` vs `track`: the same rows for estimates and for tracks."""
+    recording = tmp / f"{tracker}.mcap"
+    up = bintrack("up", str(dataset), "--speed", speed, "--tracker", tracker, "--record", str(recording),
+                  "--exit-at-end", "--listen", f"tcp/127.0.0.1:{free_port()}")
+    assert up.returncode == 0, up.stderr[-3000:]
+    offline = tmp / f"{tracker}-offline.csv"
+    assert bintrack("track", str(dataset), "--tracker", tracker, "--out", str(offline)).returncode == 0
+    expected = read_tracks(offline)
+    assert len(expected) > 20
+    for what in ("estimates", "tracks"):
+        exported = tmp / f"{tracker}-{what}.csv"
+        result = bintrack("export", str(recording), "--what", what, "--out", str(exported))
+        assert result.returncode == 0, result.stderr
+        assert read_tracks(exported) == expected, what
+
+
+@pytest.fixture(scope="module")
+def uniform_dataset(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("uniform") / "u60"
+    assert cli.main(["simulate", "uniform-800", "--range", "60", "--trajectory", "random", "--seed", "5",
+                     "--out", str(folder)]) == 0
+    return folder
+
+
+@pytest.mark.parametrize("tracker", BASELINES)
+def test_live_equals_offline_on_a_uniform_dataset(uniform_dataset, tracker, tmp_path):
+    live_and_offline(uniform_dataset, tracker, tmp_path)
+
+
+@pytest.mark.parametrize("tracker", BASELINES)
+def test_live_equals_offline_on_darpa_grid_3(tracker, tmp_path):
+    live_and_offline(DARPA3, tracker, tmp_path)
+
+
+@pytest.mark.slow
+def test_live_equals_offline_in_real_time_on_a_20_s_slice(tmp_path):
+    ds = open_dataset(DARPA3)
+    events = [e for e in ds.events() if 10.0 <= e.t < 30.0]
+    truth = [TruthRow(*r) for r in ds.truth() if 10.0 <= r.t < 30.0]
+    folder = write_dataset(tmp_path / "slice", ds.deployment, events, truth)
+    live_and_offline(folder, "equal-weight", tmp_path, speed="1")
+
+
+def test_transitions_in_shuffled_order_within_the_lateness_bound(tmp_path, zenoh_router, services):
+    """A test-side sensor agent publishes the transitions shuffled within 0.4 s of event time
+    (lateness bound 1 s); peer agent, base station and recorder still give the offline rows."""
+    ds = open_dataset(DARPA3)
+    keys = Keys(ds.deployment.name)
+    detector = TransitionDetector(ds.deployment)
+    transitions = [tr for e in ds.events() if (tr := detector.update(e)) is not None]
+    rng = random.Random(7)
+    blocks: dict[int, list] = {}
+    for tr in transitions:
+        blocks.setdefault(int(tr.t // 0.4), []).append(tr)
+
+    config = zenoh.Config()
+    config.insert_json5("mode", '"client"')
+    config.insert_json5("connect/endpoints", json.dumps([zenoh_router]))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(config)
+    progress: dict[str, float] = {}
+    done: set[str] = set()
+    entities = [
+        session.declare_queryable(keys.deployment(), lambda q: q.reply(keys.deployment(), encode(ds.deployment))),
+        session.declare_subscriber(keys.progress(), lambda s: progress.__setitem__(
+            str(s.key_expr), decode(Clock, s.payload.to_bytes()).t)),
+        session.declare_subscriber(keys.done(), lambda s: done.add(str(s.key_expr))),
+    ]
+    recording = tmp_path / "shuffled.mcap"
+    bus = ("--net", keys.net)
+    procs = [services("peer_agent", "--tracker", "equal-weight", *bus, endpoint=zenoh_router),
+             services("basestation", "--tracker", "equal-weight", *bus, endpoint=zenoh_router),
+             services("recorder", "--out", str(recording), *bus, endpoint=zenoh_router)]
+    try:
+        deadline = time.monotonic() + 60
+        while len(list(session.liveliness().get(keys.alive(), timeout=1.0))) < 3:
+            assert time.monotonic() < deadline, [p.log for p in procs]
+            time.sleep(0.1)
+
+        def tick(t: float) -> None:
+            session.put(keys.clock(), encode(Clock(t=t)))
+            deadline = time.monotonic() + 30
+            while len(progress) < 3 or min(progress.values()) < t:
+                assert time.monotonic() < deadline, (progress, [p.log for p in procs])
+                time.sleep(0.002)
+
+        for block in sorted(blocks):
+            shuffled = blocks[block][:]
+            rng.shuffle(shuffled)
+            for tr in shuffled:
+                session.put(keys.transition(tr.sensor), encode(tr))
+            tick((block + 1) * 0.4)
+        tick((max(blocks) + 2) * 0.4)
+        session.put(keys.eos(), encode(EndOfStream(t=transitions[-1].t)))
+        deadline = time.monotonic() + 60
+        while not any("/recorder/" in key for key in done):
+            assert time.monotonic() < deadline, [p.log for p in procs]
+            time.sleep(0.05)
+    finally:
+        for entity in entities:
+            entity.undeclare()
+        session.close()
+        codes = [p.stop() for p in procs]
+    assert codes == [0, 0, 0]
+    expected = sorted(output_rows(run_tracker(ds, make_tracker("equal-weight", ds.deployment))))
+    recorded = open_recording(recording)
+    assert track_rows(recorded, "estimates") == expected
+    assert track_rows(recorded, "tracks") == expected
+    assert "late" not in procs[0].log
+
+
+def test_compose_runs_the_commands_bintrack_up_runs():
+    compose = yaml.safe_load((REPO / "docker-compose.yml").read_text())["services"]
+    expected = stack_commands(tracker="equal-weight", endpoint="tcp/router:7447", net="darpa-grid",
+                              source="/data/datasets/darpa-grid-3", speed=1, loop=True,
+                              record="/data/out/recording.mcap")
+    for command in expected:
+        assert compose[command.name]["command"] == [command.module, *command.args], command.name
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["up", "--exit-at-end"], "needs a DIR"),
+        (["up", str(DARPA3), "--record", "x.csv"], "must end in .mcap"),
+        (["up", "/nonexistent/dataset"], "not a folder"),
+    ],
+)
+def test_up_rejects_bad_options_with_one_line(args, words, capsys):
+    assert cli.main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and words in err
+
+
+def test_up_reports_a_busy_port(capsys):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = zenoh.open(router_config([endpoint]))
+    try:
+        assert cli.main(["up", str(DARPA3), "--listen", endpoint]) == 2
+    finally:
+        router.close()
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "cannot start the router" in err
