@@ -9,6 +9,7 @@ and publishes each hosted node's ``LocalEstimate`` on ``peer/<node>/estimate``.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 import zenoh
@@ -35,6 +36,8 @@ class PeerAgent(Service):
         self.sequence = SequenceCheck()
         self.sources = SourceCheck()
         self.fetched: set[tuple[str | None, int | None]] = set()  # fetched from state; may still arrive
+        self.latest: dict[str, float] = {}  # event time of the newest transition taken, per sensor
+        self.restarts: set[str | None] = set()  # sources seen counting from 1 again (logged once)
         self.subscribe(self.keys.transition(), self.on_transition)
         self.subscribe(self.keys.progress("sensor_agent"), self.on_agent_progress)
         self.subscribe(self.keys.clock(), self.on_clock)
@@ -48,6 +51,7 @@ class PeerAgent(Service):
         if transition.sensor not in self.sensors or key != self.keys.transition(transition.sensor):
             self.bad.report(key, f"transition of unknown or mismatched sensor {transition.sensor!r}")
             return
+        self.follow_restart(transition)
         kind = self.sequence.classify(transition)
         if kind == "duplicate" or self.sources.seen(transition):
             if (transition.source, transition.source_seq) in self.fetched:
@@ -58,6 +62,22 @@ class PeerAgent(Service):
         if kind == "gap":
             self.repair(transition)
         self.take(transition)
+
+    def follow_restart(self, transition: Transition) -> None:
+        """A restarted sensor agent counts ``seq`` (and, under the same id, ``source_seq``) from
+        1 again: its transitions look old to the counters although they are newer in event
+        time than anything taken of their sensor. Forget the old counts, so that they are taken
+        (a genuine duplicate is never newer than what was taken)."""
+        old = self.sequence.classify(transition) == "duplicate" or self.sources.seen(transition)
+        if not old or transition.t <= self.latest.get(transition.sensor, -math.inf):
+            return
+        self.sequence.last.pop(transition.sensor, None)
+        if self.sources.seen(transition):
+            self.sources.forget(transition.source)
+        if transition.source not in self.restarts:
+            self.restarts.add(transition.source)
+            log.info("%s: %s counts its transitions from 1 again (a sensor agent restarted); following it",
+                     self.name, transition.source or transition.sensor)
 
     def repair(self, transition: Transition) -> None:
         """Fetch the transitions lost before ``transition`` from its sensor's state queryable."""
@@ -105,6 +125,7 @@ class PeerAgent(Service):
     def take(self, transition: Transition) -> None:
         self.sequence.accept(transition)
         self.sources.accept(transition)
+        self.latest[transition.sensor] = max(transition.t, self.latest.get(transition.sensor, -math.inf))
         if not self.driver.push(transition):
             self.bad.report(self.keys.transition(transition.sensor),
                             f"late: t={transition.t} is behind the watermark (lateness {self.args.lateness} s)")

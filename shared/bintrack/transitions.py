@@ -86,6 +86,11 @@ class SourceCheck:
             beyond.discard(n)
         self._contiguous[source] = n
 
+    def forget(self, source: str) -> None:
+        """Start over for ``source``: an instance restarted under the same id counts from 1 again."""
+        self._contiguous.pop(source, None)
+        self._beyond.pop(source, None)
+
     def first_missing(self, source: str, sent: int) -> int | None:
         """The lowest ``source_seq`` ≤ ``sent`` not received from ``source``, or None."""
         n = self._contiguous.get(source, 0)

@@ -1,0 +1,505 @@
+"""The live services survive bad input and failures: real Zenoh sessions on loopback, real
+service subprocesses, nothing mocked.
+
+* Bad input: garbage bytes, msgpack of the wrong schema, an unknown sensor id, NaN in ``t``,
+  duplicates and out-of-order messages, injected from a test session into each service that
+  consumes messages. The service goes on (a good message afterwards is processed), logs one
+  warning line per sender with the reason, and at SIGTERM exits 0 with a summary that counts them.
+* Kill and restart: SIGKILL a peer agent, or a sensor agent, of a running stack; the others go
+  on publishing, replay does not wait for the dead one, and the restarted one publishes again.
+* Started before the router: the service waits with one clear line and comes up when the
+  router does; with ``--wait 1`` and no router it exits 1 with a one-line message.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import math
+import re
+import signal
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import msgpack
+import pytest
+import zenoh
+
+from bintrack.bus import router_config
+from bintrack.formats import open_dataset
+from bintrack.keys import Keys, parse_key
+from bintrack.messages import (
+    Clock,
+    Deployment,
+    DiskSensor,
+    LocalEstimate,
+    RawSample,
+    Region,
+    TrackSet,
+    Transition,
+    decode,
+    encode,
+)
+from bintrack.recording import KIND_TYPES, open_recording
+
+from conftest import free_port, write_foreign_dataset
+
+NET = "faults"
+# Five disk sensors on a line, neighbours of each other: n0 … n4 at x = 0 … 4.
+DEPLOYMENT = Deployment(name=NET, units="m", region=Region(xmin=-5, ymin=-5, xmax=10, ymax=5),
+                        sensors=[DiskSensor(id=f"n{i}", x=float(i), y=0.0, range=2.0) for i in range(5)])
+TRACKER = "equal-weight"
+
+
+def client_session(endpoint: str) -> zenoh.Session:
+    config = zenoh.Config()
+    config.insert_json5("mode", '"client"')
+    config.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(config)
+
+
+def wait_until(condition, what: str, timeout: float = 30.0, logs=()) -> None:
+    """Wait (generously) for ``condition()``; fail with the services' logs if it never holds."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}\n" + "\n".join(p.log[-3000:] for p in logs))
+        time.sleep(0.02)
+
+
+class Bus:
+    """The test's own Zenoh session on a network: serves the deployment (as replay would),
+    publishes by hand, and keeps every message of the network in arrival order (one
+    subscriber, so the order each publisher sent them in is kept)."""
+
+    def __init__(self, endpoint: str, deployment: Deployment = DEPLOYMENT, serve_deployment: bool = True):
+        self.keys = Keys(deployment.name)
+        self.session = client_session(endpoint)
+        self.lock = threading.Lock()
+        self.seen: list[tuple[str, bytes]] = []
+        self.entities = [self.session.declare_subscriber(self.keys.all(), self._on_sample)]
+        if serve_deployment:
+            payload = encode(deployment)
+            self.entities.append(self.session.declare_queryable(
+                self.keys.deployment(), lambda query: query.reply(self.keys.deployment(), payload)))
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        with self.lock:
+            self.seen.append((str(sample.key_expr), sample.payload.to_bytes()))
+
+    def put(self, suffix: str, payload) -> None:
+        self.session.put(f"{self.keys.prefix}/{suffix}", payload if isinstance(payload, bytes) else encode(payload))
+
+    def messages(self, kind: str, start: int = 0) -> list[tuple[str, object]]:
+        """(key, decoded message) of every message of key kind ``kind`` seen, from index ``start``."""
+        with self.lock:
+            seen = self.seen[start:]
+        return [(key, decode(KIND_TYPES[kind], payload)) for key, payload in seen if kind_of(key) == kind]
+
+    def mark(self) -> int:
+        with self.lock:
+            return len(self.seen)
+
+    def alive(self, service: str) -> list[str]:
+        replies = self.session.liveliness().get(self.keys.alive(service), timeout=2.0)
+        return [str(r.ok.key_expr) for r in replies if r.ok is not None]
+
+    def wait_for(self, service: str, proc=None, timeout: float = 30.0) -> None:
+        wait_until(lambda: self.alive(service), f"{service} to come up", timeout, [proc] if proc else [])
+
+    def tick(self, t: float, service: str, proc=None) -> None:
+        """Publish a clock tick and wait until ``service`` reports progress to it (so it has
+        handled everything published before the tick)."""
+        self.put("clock", Clock(t=t))
+        wait_until(lambda: any(parse_key(key).service == service and message.t >= t
+                               for key, message in self.messages("progress")),
+                   f"progress {t} from {service}", logs=[proc] if proc else [])
+
+    def close(self) -> None:
+        for entity in self.entities:
+            entity.undeclare()
+        self.session.close()
+
+
+def kind_of(key: str) -> str | None:
+    try:
+        return parse_key(key).kind
+    except ValueError:
+        return None
+
+
+@pytest.fixture
+def bus(zenoh_router):
+    handle = Bus(zenoh_router)
+    yield handle
+    handle.close()
+
+
+# --------------------------------------------------------------------------- bad input
+
+NAN_T = float("nan")
+
+
+@dataclass(frozen=True)
+class Bad:
+    """A bad payload sent on ``suffix``: the count key it is summed under and part of its reason."""
+
+    suffix: str
+    payload: bytes
+    kind: str
+    reason: str
+
+
+def packed(**fields) -> bytes:
+    return msgpack.packb({"version": 1, **fields})
+
+
+def send_bad(bus: Bus, cases: list[Bad]) -> None:
+    for case in cases:
+        bus.put(case.suffix, case.payload)
+
+
+def check_bad_input_accounting(proc, service: str, cases: list[Bad]) -> None:
+    """(b) one warning line per sender, with the reason of the first bad payload it sent, and
+    (c) exit 0 at SIGTERM with a summary line that counts every bad payload by kind."""
+    assert proc.proc.poll() is None, proc.log
+    assert proc.stop() == 0, proc.log
+    log = proc.log
+    assert "Traceback" not in log, log
+    warnings = [line for line in log.splitlines() if "dropped a bad payload from" in line]
+    first: dict[str, Bad] = {}
+    for case in cases:
+        first.setdefault(f"{NET}/{case.suffix}", case)
+    assert len(warnings) == len(first), log
+    for sender, case in first.items():
+        lines = [line for line in warnings if f"dropped a bad payload from bintrack/{sender}: " in line]
+        assert len(lines) == 1, (sender, log)
+        assert case.reason in lines[0], (case, lines[0])
+        assert lines[0].startswith(tuple("0123456789")) and f"{service}: " in lines[0]  # a log line, not a trace
+    summary = [line for line in log.splitlines() if re.search(rf"{service}: \d+ bad payloads", line)]
+    assert len(summary) == 1 and log.strip().splitlines()[-1] == summary[0], log  # the final line
+    match = re.search(rf"{service}: (\d+) bad payloads (\{{.*\}}), (\d+) dropped when the inbox was full", summary[0])
+    assert match, summary[0]
+    assert int(match.group(1)) == len(cases)
+    assert Counter(ast.literal_eval(match.group(2))) == Counter(case.kind for case in cases)
+    assert int(match.group(3)) == 0
+
+
+def twice(*cases: Bad) -> list[Bad]:
+    """Each case sent two times: still one warning line per sender, both counted."""
+    return [case for case in cases for _ in range(2)]
+
+
+def test_sensor_agent_survives_bad_raw_samples(zenoh_router, services, bus):
+    agent = services("sensor_agent", "--net", NET, endpoint=zenoh_router)
+    bus.wait_for("sensor_agent", agent)
+    garbage = twice(
+        Bad("raw/n0", b"\xc1\xc1 not msgpack at all", "not msgpack", "not msgpack"),
+        Bad("raw/n1", packed(temperature=21.5), "invalid RawSample", "invalid RawSample: t: Field required"),
+        Bad("raw/zz", encode(RawSample(t=1.0, sensor="zz", value=1)), "unknown sensor id 'zz'", "unknown sensor id 'zz'"),
+        Bad("raw/n2", packed(t=NAN_T, sensor="n2", value=1), "invalid RawSample", "invalid RawSample: t: Input should be a finite number"),
+        Bad("raw/n4", encode(RawSample(t=1.0, sensor="n4", value=7)), "disk sensor reports 0 or 1, got 7", "disk sensor reports 0 or 1, got 7"),
+    )
+    send_bad(bus, garbage)
+    # Order is checked per sensor: n3 at t=1 (a transition), the same sample again (a
+    # duplicate repeats the status: no transition), then two samples older than t=1.
+    bus.put("raw/n3", RawSample(t=1.0, sensor="n3", value=1))
+    bus.put("raw/n3", RawSample(t=1.0, sensor="n3", value=1))
+    out_of_order = twice(Bad("raw/n3", encode(RawSample(t=0.5, sensor="n3", value=0)), "out of order",
+                             "out of order: t=0.5 after t=1.0"))
+    send_bad(bus, out_of_order)
+    # (a) good samples afterwards become transitions, and n3 continues from its status
+    bus.put("raw/n3", RawSample(t=2.0, sensor="n3", value=0))
+    bus.put("raw/n4", RawSample(t=2.0, sensor="n4", value=1))
+    bus.tick(3.0, "sensor_agent", agent)
+    wait_until(lambda: len(bus.messages("transition")) >= 3, "three transitions", logs=[agent])
+    transitions = sorted(((m.sensor, m.seq, m.t, m.previous, m.value) for _, m in bus.messages("transition")))
+    assert transitions == [("n3", 1, 1.0, 0, 1), ("n3", 2, 2.0, 1, 0), ("n4", 1, 2.0, 0, 1)]
+    check_bad_input_accounting(agent, "sensor_agent", garbage + out_of_order)
+
+
+def transition(sensor: str, seq: int, t: float, value: int) -> Transition:
+    return Transition(t=t, sensor=sensor, value=value, previous=1 - value, seq=seq)
+
+
+def test_peer_agent_survives_bad_transitions(zenoh_router, services, bus):
+    agent = services("peer_agent", "--tracker", TRACKER, "--net", NET, endpoint=zenoh_router)
+    bus.wait_for("peer_agent", agent)
+    garbage = twice(
+        Bad("sensor/n0/transition", b"\x00garbage\xff", "not msgpack", "not msgpack"),
+        Bad("sensor/n1/transition", encode(RawSample(t=1.0, sensor="n1", value=1)), "invalid Transition",
+            "invalid Transition: previous: Field required"),
+        Bad("sensor/zz/transition", encode(transition("zz", 1, 1.0, 1)), "transition of unknown or mismatched sensor 'zz'",
+            "transition of unknown or mismatched sensor 'zz'"),
+        Bad("sensor/n2/transition", packed(t=NAN_T, sensor="n2", value=1, previous=0, seq=1), "invalid Transition",
+            "invalid Transition: t: Input should be a finite number"),
+    )
+    send_bad(bus, garbage)
+    # n3: seq 1 and 2, with seq 1 again in between (a duplicate) and after 2 (out of order)
+    bus.put("sensor/n3/transition", transition("n3", 1, 1.0, 1))
+    duplicates = [Bad("sensor/n3/transition", encode(transition("n3", 1, 1.0, 1)), "duplicate",
+                      "duplicate: seq 1 seen already")]
+    send_bad(bus, duplicates)
+    bus.put("sensor/n3/transition", transition("n3", 2, 1.5, 0))
+    out_of_order = [Bad("sensor/n3/transition", encode(transition("n3", 1, 1.0, 1)), "duplicate",
+                        "duplicate: seq 1 seen already")]
+    send_bad(bus, out_of_order)
+    bus.tick(3.0, "peer_agent", agent)  # watermark 2.0: n3's two transitions are released
+    # out of order in event time: behind the watermark (lateness 1 s)
+    late = [Bad("sensor/n4/transition", encode(transition("n4", 1, 1.2, 1)), "late",
+                "late: t=1.2 is behind the watermark (lateness 1.0 s)"),
+            Bad("sensor/n4/transition", encode(transition("n4", 2, 1.4, 0)), "late", "late")]
+    send_bad(bus, late)
+    # (a) a good transition afterwards contributes to an estimate after a clock tick
+    bus.put("sensor/n1/transition", transition("n1", 1, 6.0, 1))
+    bus.tick(8.0, "peer_agent", agent)
+    wait_until(lambda: len(bus.messages("estimate")) >= 2, "two estimates", logs=[agent])
+    estimates = [(key, m.t, m.node, m.x, m.y) for key, m in bus.messages("estimate")]
+    # n3 alone detected at t=1 (its seq 2 at t=1.5 leaves nobody detecting: no estimate);
+    # at t=6 only n1 detects (n4's late transitions were dropped, n3 is absent again)
+    assert estimates == [(f"bintrack/{NET}/peer/n3/estimate", 1.0, "n3", 3.0, 0.0),
+                         (f"bintrack/{NET}/peer/n1/estimate", 6.0, "n1", 1.0, 0.0)]
+    check_bad_input_accounting(agent, "peer_agent", garbage + duplicates + out_of_order + late)
+
+
+def estimate(node: str, t: float, x: float, tracker: str = TRACKER) -> LocalEstimate:
+    return LocalEstimate(t=t, node=node, tracker=tracker, x=x, y=0.0)
+
+
+def test_basestation_survives_bad_estimates(zenoh_router, services, bus):
+    station = services("basestation", "--tracker", TRACKER, "--net", NET, endpoint=zenoh_router)
+    bus.wait_for("basestation", station)
+    garbage = twice(
+        Bad("peer/n0/estimate", b"\xc1", "not msgpack", "not msgpack"),
+        Bad("peer/n1/estimate", encode(transition("n1", 1, 1.0, 1)), "invalid LocalEstimate", "invalid LocalEstimate: "),
+        Bad("peer/zz/estimate", encode(estimate("zz", 1.0, 0.5)), "estimate of unknown or mismatched node 'zz'",
+            "estimate of unknown or mismatched node 'zz'"),
+        Bad("peer/n2/estimate", packed(t=NAN_T, node="n2", tracker=TRACKER, x=1.0, y=0.0), "invalid LocalEstimate",
+            "invalid LocalEstimate: t: Input should be a finite number"),
+        Bad("peer/n4/estimate", encode(estimate("n4", 1.0, 4.0, tracker="arc")),
+            "estimate of tracker 'arc', this base station runs 'equal-weight'", "estimate of tracker 'arc'"),
+    )
+    send_bad(bus, garbage)
+    # Out of order within the lateness bound is put in order; estimates carry no seq, so a
+    # duplicate is not an error here: it is published again.
+    bus.put("peer/n3/estimate", estimate("n3", 1.5, 3.0))
+    bus.put("peer/n2/estimate", estimate("n2", 1.0, 2.0))
+    bus.put("peer/n2/estimate", estimate("n2", 1.0, 2.0))
+    bus.tick(4.0, "basestation", station)  # watermark 2.0 (lateness 2 s)
+    late = twice(Bad("peer/n1/estimate", encode(estimate("n1", 0.5, 1.0)), "late",
+                     "late: t=0.5 is behind the watermark (lateness 2.0 s)"))
+    send_bad(bus, late)
+    bus.put("peer/n1/estimate", estimate("n1", 5.0, 1.5))  # (a) a good one afterwards
+    bus.tick(8.0, "basestation", station)
+    wait_until(lambda: len(bus.messages("tracks")) >= 4, "four track sets", logs=[station])
+    tracks = [(m.t, m.tracker, [(k.track, k.x, k.y) for k in m.tracks]) for _, m in bus.messages("tracks")]
+    assert tracks == [(1.0, TRACKER, [(0, 2.0, 0.0)]), (1.0, TRACKER, [(0, 2.0, 0.0)]),
+                      (1.5, TRACKER, [(0, 3.0, 0.0)]), (5.0, TRACKER, [(0, 1.5, 0.0)])]
+    latest = [decode(TrackSet, r.ok.payload.to_bytes()) for r in bus.session.get(bus.keys.tracks(), timeout=5.0) if r.ok]
+    assert [m.t for m in latest] == [5.0]  # the tracks queryable answers too
+    check_bad_input_accounting(station, "basestation", garbage + late)
+
+
+def test_recorder_survives_bad_payloads(tmp_path, zenoh_router, services, bus):
+    out = tmp_path / "faults.mcap"
+    recorder = services("recorder", "--out", str(out), "--net", NET, endpoint=zenoh_router)
+    bus.wait_for("recorder", recorder)
+    garbage = twice(
+        Bad("raw/n0", b"\xc1 garbage", "not msgpack", "not msgpack"),
+        Bad("clock", encode(RawSample(t=1.0, sensor="n1", value=1)), "invalid Clock", "invalid Clock: "),
+        Bad("no/such/key", encode(Clock(t=1.0)), "unknown key", "unknown key: not a key of a bintrack message"),
+        Bad("raw/n2", packed(t=NAN_T, sensor="n2", value=1), "invalid RawSample",
+            "invalid RawSample: t: Input should be a finite number"),
+        Bad("peer/n1/estimate", packed(t=-1.0, node="n1", tracker=TRACKER, x=1.0, y=0.0), "unrecordable",
+            "unrecordable: event time -1.0 s cannot be an MCAP log time"),
+    )
+    send_bad(bus, garbage)
+    # The recorder keeps what was on the bus: a sample of a sensor it does not know, a
+    # duplicate and an out-of-order one are valid messages and are recorded as they came.
+    bus.put("raw/n3", RawSample(t=1.0, sensor="n3", value=1))
+    bus.put("raw/n3", RawSample(t=1.0, sensor="n3", value=1))
+    bus.put("raw/n3", RawSample(t=0.5, sensor="n3", value=0))
+    bus.put("raw/zz", RawSample(t=1.5, sensor="zz", value=1))
+    bus.put("raw/n4", RawSample(t=2.0, sensor="n4", value=1))  # (a) a good one after the bad ones
+    bus.tick(3.0, "recorder", recorder)
+    check_bad_input_accounting(recorder, "recorder", garbage)
+    recording = open_recording(out)
+    assert recording.complete  # SIGTERM finalised the file
+    assert [(r.key.removeprefix(f"bintrack/{NET}/"), r.t) for r in recording.records()] == [
+        ("raw/n3", 0.5), ("raw/n3", 1.0), ("raw/n3", 1.0), ("raw/zz", 1.5), ("raw/n4", 2.0), ("clock", 3.0)]
+
+
+# --------------------------------------------------------------------------- kill and restart
+
+
+@pytest.fixture(scope="module")
+def crossing(tmp_path_factory) -> Path:
+    """A 5 s crossing of 300 disk sensors (about 90 transitions a pass), played in a loop."""
+    return write_foreign_dataset(tmp_path_factory.mktemp("crossing") / "crossing", nodes=300, speed=32.0)
+
+
+class Stack:
+    """Two sensor agents and two peer agents, each on one half of the sensors, a base station,
+    and replay at real time in a loop; a test session that watches the whole network."""
+
+    def __init__(self, dataset: Path, endpoint: str, services):
+        self.deployment = open_dataset(dataset).deployment
+        ids = [s.id for s in self.deployment.sensors]
+        self.halves = {"a": ids[0::2], "b": ids[1::2]}
+        self.endpoint = endpoint
+        self.services = services
+        self.net = ("--net", self.deployment.name)
+        self.bus = Bus(endpoint, self.deployment, serve_deployment=False)  # replay serves it
+        self.sensor_agents = {half: self.sensor_agent(half) for half in self.halves}
+        self.peer_agents = {half: self.peer_agent(half) for half in self.halves}
+        self.basestation = services("basestation", "--tracker", TRACKER, *self.net, endpoint=endpoint)
+        self.replay = services("replay", str(dataset), "--speed", "1", "--loop",
+                               "--wait-for", "sensor_agent,peer_agent,basestation", endpoint=endpoint)
+
+    def sensor_agent(self, half: str):
+        # an explicit id: restarted, it is the same instance id again, as a container restarted
+        # under its hostname and pid 1 would be (so source_seq restarts at 1 too)
+        return self.services("sensor_agent", "--sensors", ",".join(self.halves[half]), "--id", f"sensors-{half}",
+                             *self.net, endpoint=self.endpoint)
+
+    def peer_agent(self, half: str):
+        return self.services("peer_agent", "--tracker", TRACKER, "--sensors", ",".join(self.halves[half]), *self.net,
+                             endpoint=self.endpoint)
+
+    @property
+    def procs(self) -> list:
+        return [*self.sensor_agents.values(), *self.peer_agents.values(), self.basestation, self.replay]
+
+    def last_tick(self) -> float:
+        ticks = self.bus.messages("clock")
+        return ticks[-1][1].t if ticks else -math.inf
+
+    def wait(self, condition, what: str, timeout: float = 45.0) -> None:
+        wait_until(condition, what, timeout, self.procs)
+
+    def arrived(self, kind: str, half: str, start: int, after: float = -math.inf) -> list:
+        """Messages of ``kind`` about the sensors of ``half`` seen since index ``start``, with t > ``after``."""
+        nodes = set(self.halves[half])
+        return [m for key, m in self.bus.messages(kind, start) if parse_key(key).sensor in nodes and m.t > after]
+
+    def kill(self, proc) -> tuple[int, float]:
+        """SIGKILL ``proc``; (index into what the bus saw, last tick) once it is dead and gone."""
+        before = len(self.bus.alive(proc.name))
+        proc.proc.send_signal(signal.SIGKILL)
+        assert proc.wait(20) == -signal.SIGKILL
+        self.wait(lambda: len(self.bus.alive(proc.name)) == before - 1, f"the token of the killed {proc.name} to go")
+        return self.bus.mark(), self.last_tick()
+
+    def stop_all(self) -> dict[str, int]:
+        """SIGTERM everything still running; the exit status of each."""
+        codes = {p.log_path.name: p.stop() for p in self.procs if p.proc.poll() is None}
+        self.bus.close()
+        return codes
+
+    def check_exits(self, codes: dict[str, int]) -> None:
+        """Every service exited 0 at SIGTERM (replay included: it never hung)."""
+        assert len(codes) == 6 and set(codes.values()) == {0}, (codes, [p.log[-2000:] for p in self.procs])
+
+
+def test_killed_peer_agent_others_go_on_and_restart_publishes_again(crossing, zenoh_router, services):
+    stack = Stack(crossing, zenoh_router, services)
+    try:
+        stack.wait(lambda: stack.last_tick() >= 2.0 and stack.arrived("estimate", "a", 0), "the stack to run")
+        start, t_kill = stack.kill(stack.peer_agents["a"])
+        # the other processes keep running and publishing: replay's ticks go on (it does not
+        # wait for the dead agent), and the surviving agent's nodes keep getting estimates
+        stack.wait(lambda: stack.last_tick() >= t_kill + 2.0, "clock ticks after the kill")
+        stack.wait(lambda: stack.arrived("estimate", "b", start, after=t_kill), "estimates of the surviving agent")
+        assert stack.arrived("estimate", "a", start) == []  # nobody publishes the dead agent's nodes
+        assert all(p.proc.poll() is None for p in stack.procs if p is not stack.peer_agents["a"])
+        stack.peer_agents["a"] = stack.peer_agent("a")  # the same arguments
+        stack.bus.wait_for("peer_agent", stack.peer_agents["a"])
+        restarted, t_restart = stack.bus.mark(), stack.last_tick()
+        stack.wait(lambda: stack.arrived("estimate", "a", restarted, after=t_restart),
+                   "estimates from the restarted peer agent")
+        stack.wait(lambda: stack.arrived("estimate", "b", restarted, after=t_restart), "estimates of the other agent")
+        stack.wait(lambda: [m for _, m in stack.bus.messages("tracks", restarted) if m.t > t_restart],
+                   "tracks from the base station after the restart")
+    finally:
+        codes = stack.stop_all()
+    stack.check_exits(codes)
+
+
+def test_killed_sensor_agent_others_go_on_and_restart_publishes_again(crossing, zenoh_router, services):
+    stack = Stack(crossing, zenoh_router, services)
+    try:
+        stack.wait(lambda: stack.last_tick() >= 2.0 and stack.arrived("transition", "a", 0), "the stack to run")
+        start, t_kill = stack.kill(stack.sensor_agents["a"])
+        heard: dict[str, int] = {}  # sensor → its last seq before the kill
+        for m in stack.arrived("transition", "a", 0):
+            heard[m.sensor] = max(m.seq, heard.get(m.sensor, 0))
+        stack.wait(lambda: stack.last_tick() >= t_kill + 2.0, "clock ticks after the kill")
+        stack.wait(lambda: stack.arrived("transition", "b", start, after=t_kill),
+                   "transitions of the surviving sensor agent")
+        stack.wait(lambda: stack.arrived("estimate", "b", start, after=t_kill), "estimates of its sensors")
+        assert stack.arrived("transition", "a", start) == []
+        assert all(p.proc.poll() is None for p in stack.procs if p is not stack.sensor_agents["a"])
+        stack.sensor_agents["a"] = stack.sensor_agent("a")
+        stack.bus.wait_for("sensor_agent", stack.sensor_agents["a"])
+        restarted, t_restart = stack.bus.mark(), stack.last_tick()
+        # The restarted agent numbers its sensors' transitions from 1 again; the peer agents
+        # take them, also for sensors they heard of before the kill (in the next pass): a
+        # sensor entered again gets its estimate at that very transition.
+        def reentered() -> list[Transition]:
+            return [m for m in stack.arrived("transition", "a", restarted, after=t_restart)
+                    if m.sensor in heard and m.value == 1]
+
+        stack.wait(reentered, "a transition from the restarted sensor agent of a sensor heard before")
+        again = reentered()[0]
+        assert again.source == "sensors-a" and again.seq <= heard[again.sensor]  # its numbering restarted
+        stack.wait(lambda: [e for e in stack.arrived("estimate", "a", restarted) if (e.node, e.t) == (again.sensor, again.t)],
+                   f"the estimate of {again.sensor} at t={again.t}")
+    finally:
+        codes = stack.stop_all()
+    stack.check_exits(codes)
+    for proc in stack.peer_agents.values():
+        assert "sensors-a counts its transitions from 1 again (a sensor agent restarted)" in proc.log, proc.log
+    for proc in stack.procs:
+        assert "duplicate" not in proc.log, proc.log
+
+
+# --------------------------------------------------------------------------- no router yet
+
+
+def test_service_started_before_the_router_waits_then_comes_up(tmp_path, services):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    agent = services("sensor_agent", "--net", NET, "--wait", "60", endpoint=endpoint)
+    wait_until(lambda: "waiting for the Zenoh router" in agent.log, "the waiting line", logs=[agent])
+    assert agent.proc.poll() is None
+    waiting = [line for line in agent.log.splitlines() if "waiting for the Zenoh router" in line]
+    assert waiting[0].split(" ", 1)[1].startswith("sensor_agent: waiting for the Zenoh router (")
+    assert waiting[0].endswith("); retrying")
+    router = zenoh.open(router_config([endpoint]))
+    try:
+        bus = Bus(endpoint)
+        try:
+            bus.wait_for("sensor_agent", agent)
+            assert "ready on bintrack/faults" in agent.log
+        finally:
+            bus.close()
+        assert agent.stop() == 0, agent.log
+    finally:
+        router.close()
+    log = agent.log
+    assert "Traceback" not in log, log
+    assert all(re.match(r"\d\d:\d\d:\d\d ", line) for line in log.splitlines()), log  # log lines only
+
+
+def test_service_without_a_router_gives_up_after_wait_with_one_line(services):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    agent = services("peer_agent", "--tracker", TRACKER, "--net", NET, "--wait", "1", endpoint=endpoint)
+    assert agent.wait(30) == 1
+    lines = agent.log.strip().splitlines()
+    assert "Traceback" not in agent.log, agent.log
+    assert re.fullmatch(r"\d\d:\d\d:\d\d peer_agent: no Zenoh router reachable after \d+ attempts: .+", lines[-1]), lines
+    assert all(re.match(r"\d\d:\d\d:\d\d peer_agent: waiting for the Zenoh router \(.+\); retrying$", line)
+               for line in lines[:-1]), lines
