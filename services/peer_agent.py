@@ -101,7 +101,12 @@ class PeerAgent(Service):
 
     def fetch_missed(self, selector: str, before: Transition | None = None, upto: int | None = None) -> bool:
         """Take the ``missed`` transitions of every state reply to ``selector``, oldest first:
-        those before ``before`` (same sensor), or with source_seq ≤ ``upto``."""
+        those before ``before`` (same sensor), or with source_seq ≤ ``upto``.
+
+        The get blocks the loop on purpose: the fetched transitions must be taken before the
+        next clock tick moves the watermark past them. A reply takes milliseconds; only a
+        sensor agent that is gone costs the timeout.
+        """
         missed: list[Transition] = []
         replied = False
         for payload in self.query(selector, timeout=2.0):
