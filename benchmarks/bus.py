@@ -36,7 +36,6 @@ stdout). ``--keep DIR`` keeps the datasets, recording and service logs there.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import signal
@@ -54,7 +53,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from bintrack.bus import router_config
+from bintrack.bus import client_config, router_config
 from bintrack.formats import open_dataset, write_dataset
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, RawSample, TrackSet, Transition, decode, encode
@@ -93,12 +92,7 @@ def free_port() -> int:
 
 
 def client_session(endpoint: str) -> zenoh.Session:
-    """A client session of the router at ``endpoint``, no scouting (as the services default to)."""
-    config = zenoh.Config()
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    config.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(config)
+    return zenoh.open(client_config([endpoint]))
 
 
 # --------------------------------------------------------------------------- subprocesses

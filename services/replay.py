@@ -18,13 +18,13 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
-import math
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import zenoh
 
+from bintrack.argtypes import int_at_least, non_negative_float, positive_float
 from bintrack.bus import Service, add_bus_arguments, service_main
 from bintrack.errors import CommandError
 from bintrack.formats import FormatError, open_dataset
@@ -38,31 +38,6 @@ log = logging.getLogger("bintrack")
 PROGRESS_INTERVAL = 5.0  # s of wall clock between progress lines
 
 
-def _speed(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
-    return value
-
-
-def _positive(text: str) -> float:
-    value = _speed(text)
-    if value == 0:
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return value
-
-
-def _ticks_ahead(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
-    return value
 
 
 def _key_expr(text: str) -> str:
@@ -74,17 +49,17 @@ def _key_expr(text: str) -> str:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("source", metavar="SOURCE", help="dataset folder, or a recording (FILE.mcap)")
-    parser.add_argument("--speed", type=_speed, default=1.0, metavar="X",
+    parser.add_argument("--speed", type=non_negative_float, default=1.0, metavar="X",
                         help="event time runs X times real time; 0 = as fast as flow control allows (default: %(default)s)")
     parser.add_argument("--loop", action="store_true",
                         help="play again after the end, shifted in event time so that it keeps increasing")
-    parser.add_argument("--clock-period", type=_positive, default=0.5, metavar="S",
+    parser.add_argument("--clock-period", type=positive_float, default=0.5, metavar="S",
                         help="event time between clock ticks, s (default: %(default)s)")
-    parser.add_argument("--max-ahead", type=_ticks_ahead, default=1, metavar="N",
+    parser.add_argument("--max-ahead", type=int_at_least(1), default=1, metavar="N",
                         help="clock ticks that may be unacknowledged by the slowest service (default: %(default)s)")
     parser.add_argument("--wait-for", action="append", default=[], metavar="SERVICE[,SERVICE…]",
                         help="publish nothing until each of these services holds a liveliness token; repeatable")
-    parser.add_argument("--ready-timeout", type=_positive, default=60.0, metavar="S",
+    parser.add_argument("--ready-timeout", type=positive_float, default=60.0, metavar="S",
                         help="how long to wait for the --wait-for services, s (default: %(default)s)")
     parser.add_argument("--keys", action="append", default=[], type=_key_expr, metavar="KEYEXPR",
                         help="replay only samples whose recorded key matches, repeatable, e.g. 'bintrack/*/raw/**' "

@@ -14,7 +14,6 @@ service subprocesses, nothing mocked.
 from __future__ import annotations
 
 import ast
-import json
 import math
 import re
 import signal
@@ -28,7 +27,7 @@ import msgpack
 import pytest
 import zenoh
 
-from bintrack.bus import router_config
+from bintrack.bus import client_config, router_config
 from bintrack.formats import open_dataset
 from bintrack.keys import Keys, parse_key
 from bintrack.messages import (
@@ -55,11 +54,7 @@ TRACKER = "equal-weight"
 
 
 def client_session(endpoint: str) -> zenoh.Session:
-    config = zenoh.Config()
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    config.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(config)
+    return zenoh.open(client_config([endpoint]))
 
 
 def wait_until(condition, what: str, timeout: float = 30.0, logs=()) -> None:

@@ -4,12 +4,12 @@ the ``tracks`` queryable, liveliness, and a clean close."""
 from __future__ import annotations
 
 import asyncio
-import json
 
 import msgpack
 import pytest
 import zenoh
 
+from bintrack.bus import client_config
 from bintrack.client import BintrackClient
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, Track, TrackSet, Transition, encode
@@ -22,11 +22,7 @@ KEYS = Keys(NET)
 @pytest.fixture
 def bus(zenoh_router):
     """A second, independent client session on the test router: the other side of the bus."""
-    config = zenoh.Config()
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", json.dumps([zenoh_router]))
-    config.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(config)
+    session = zenoh.open(client_config([zenoh_router]))
     try:
         yield session
     finally:

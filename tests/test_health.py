@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 
 import pytest
 import zenoh
 
+from bintrack.bus import client_config
 from bintrack.keys import Keys
 from conftest import REPO, free_port
 
@@ -21,10 +21,7 @@ def health(*args: str) -> subprocess.CompletedProcess:
 @pytest.fixture
 def token(zenoh_router):
     """A session holding the liveliness token of a ``recorder`` instance on net ``health``."""
-    config = zenoh.Config()
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", json.dumps([zenoh_router]))
-    session = zenoh.open(config)
+    session = zenoh.open(client_config([zenoh_router]))
     token = session.liveliness().declare_token(Keys("health").alive("recorder", "box-1"))
     yield zenoh_router
     token.undeclare()

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import random
 import subprocess
 import sys
@@ -14,7 +13,7 @@ import yaml
 import zenoh
 
 from bintrack import cli
-from bintrack.bus import router_config
+from bintrack.bus import client_config, router_config
 from bintrack.formats import (
     TruthRow,
     open_dataset,
@@ -96,11 +95,7 @@ def test_transitions_in_shuffled_order_within_the_lateness_bound(tmp_path, zenoh
     for tr in transitions:
         blocks.setdefault(int(tr.t // 0.4), []).append(tr)
 
-    config = zenoh.Config()
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", json.dumps([zenoh_router]))
-    config.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(config)
+    session = zenoh.open(client_config([zenoh_router]))
     progress: dict[str, float] = {}
     done: set[str] = set()
     entities = [

@@ -12,6 +12,7 @@ import pytest
 import zenoh
 from mcap.reader import make_reader
 
+from bintrack.bus import client_config
 from bintrack import cli
 from bintrack.formats import FormatError, ObjectRow, TrackRow, read_objects, read_tracks
 from bintrack.messages import (
@@ -149,11 +150,7 @@ class Bus:
     """A test's own client session: serves the deployment and publishes by hand."""
 
     def __init__(self, endpoint: str, deployment: Deployment = DEPLOYMENT):
-        config = zenoh.Config()
-        config.insert_json5("mode", '"client"')
-        config.insert_json5("connect/endpoints", json.dumps([endpoint]))
-        config.insert_json5("scouting/multicast/enabled", "false")
-        self.session = zenoh.open(config)
+        self.session = zenoh.open(client_config([endpoint]))
         self.net = deployment.name
         payload = encode(deployment)
         self.queryable = self.session.declare_queryable(

@@ -4,7 +4,6 @@ on a real Zenoh router with real subprocesses — dataset → recorder, recordin
 
 from __future__ import annotations
 
-import json
 import signal
 import subprocess
 import sys
@@ -14,7 +13,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from bintrack.bus import router_config
+from bintrack.bus import client_config, router_config
 from bintrack.formats import Event, open_dataset, write_dataset
 from bintrack.messages import Clock, Deployment, DiskSensor, EndOfStream, RawSample, Region, decode, encode
 from bintrack.recording import open_recording
@@ -131,11 +130,7 @@ def tiny_dataset(folder: Path, events: list[tuple[float, str, int]] | None = Non
 
 
 def client(endpoint: str) -> zenoh.Session:
-    config = zenoh.Config()
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    config.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(config)
+    return zenoh.open(client_config([endpoint]))
 
 
 def wait_until(condition, timeout: float = 20.0, what: str = "condition") -> None:

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import json
 import queue
 import signal
 import subprocess
@@ -14,6 +13,7 @@ import time
 import pytest
 import zenoh
 
+from bintrack.bus import client_config
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, Track, TrackSet, Transition, encode
 from conftest import REPO, free_port
@@ -50,10 +50,7 @@ class Printer:
 
 @pytest.fixture
 def bus(zenoh_router):
-    config = zenoh.Config()
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", json.dumps([zenoh_router]))
-    session = zenoh.open(config)
+    session = zenoh.open(client_config([zenoh_router]))
     yield session
     session.close()
 

@@ -13,7 +13,7 @@ import argparse
 import math
 
 from . import bounds
-from .argtypes import positive_float
+from .argtypes import int_at_least, positive_float
 from .errors import CommandError
 
 DEFAULT_NODES = 800
@@ -25,18 +25,10 @@ PAPER = {"delta": 0.261, "epsilon": 0.155, "eq24_L": 0.278, "eq24": 0.139, "simu
 MAX_MEAN_NEIGHBOURS = 200.0
 
 
-def _node_count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if value < 2:
-        raise argparse.ArgumentTypeError(f"need at least 2 nodes, got {text!r}")
-    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--nodes", type=_node_count, default=DEFAULT_NODES, metavar="N",
+    parser.add_argument("--nodes", type=int_at_least(2), default=DEFAULT_NODES, metavar="N",
                         help=f"number of sensors (default {DEFAULT_NODES})")
     parser.add_argument("--area", type=positive_float, default=DEFAULT_AREA, metavar="A",
                         help=f"area of the domain in units² (default {DEFAULT_AREA:g}, i.e. 20 × 20)")

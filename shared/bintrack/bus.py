@@ -99,6 +99,15 @@ def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
     return config
 
 
+def client_config(endpoints: Iterable[str]) -> zenoh.Config:
+    """A client of the router(s) at ``endpoints``, no multicast scouting (as services default to)."""
+    config = zenoh.Config()
+    config.insert_json5("mode", '"client"')
+    config.insert_json5("connect/endpoints", json.dumps(list(endpoints)))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    return config
+
+
 def router_config(listen: Iterable[str] = (DEFAULT_ENDPOINT,)) -> zenoh.Config:
     """An in-process Zenoh router listening on ``listen`` (loopback by default), no scouting."""
     config = zenoh.Config()

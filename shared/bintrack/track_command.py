@@ -5,30 +5,13 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .argtypes import positive_float
+from .argtypes import int_at_least, positive_float
 from .errors import CommandError
 from .formats import open_dataset, write_tracks
 from .pipeline import output_rows, run_tracker
 from .progress import Progress
 from .trackers import TRACKER_NAMES, make_tracker
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a positive number: {text!r}")
-    return value
-
-def _window(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 2:
-        raise argparse.ArgumentTypeError("must be at least 2")
-    return value
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", metavar="DIR", help="dataset folder (deployment.json, events.csv)")
@@ -36,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="tracks.csv", help="tracks.csv to write (default: %(default)s; '-' for stdout)")
     parser.add_argument("--speed", type=positive_float, help="target speed, units/s, for distance-weight and line-fit "
                         "(default: estimated from detection durations)")
-    parser.add_argument("--window", type=_window, default=10, help="line-fit: estimates in the fitted history (default: %(default)s)")
+    parser.add_argument("--window", type=int_at_least(2), default=10, help="line-fit: estimates in the fitted history (default: %(default)s)")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                         help="show progress on stderr (default: when stderr is a terminal)")
 
