@@ -1,0 +1,60 @@
+"""Target velocity from location estimates timed by one node's local clock (paper 001 §3.2.3).
+
+A node hears its neighbours' estimates (each sent at the sender's transition) and times them
+on its own clock, so no clock synchronisation is needed: a clock offset cancels in the time
+difference, and a skew only scales the speed by 1/(1 + skew). Only accurate estimates are used
+— the midpoints of short arcs — and the velocity is the displacement between two of them over
+their local time difference: the newest and the oldest of the last few accurate ones, which
+keeps the baseline long (a small relative error) and the estimate recent.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+DEFAULT_MAX_ARC = 0.5  # rad: an estimate within ±R/4 of the target along the circle
+DEFAULT_SPAN = 6  # accurate estimates kept: the pair is the oldest and newest of them
+
+
+@dataclass(frozen=True)
+class LocalClock:
+    """A node's clock: local = (1 + skew)·t + offset, t in event time (s)."""
+
+    offset: float = 0.0
+    skew: float = 0.0
+
+    def local(self, t: float) -> float:
+        return (1.0 + self.skew) * t + self.offset
+
+
+class VelocityEstimator:
+    """Velocity (units/s) from the accurate estimates one node has heard, on its local clock."""
+
+    def __init__(self, max_arc: float = DEFAULT_MAX_ARC, span: int = DEFAULT_SPAN):
+        if not max_arc > 0 or span < 2:
+            raise ValueError("max_arc must be > 0 and span at least 2")
+        self.max_arc = max_arc
+        self._accurate: deque[tuple[float, float, float]] = deque(maxlen=span)
+
+    def observe(self, local_time: float, x: float, y: float, arc: float | None) -> tuple[float, float] | None:
+        """Take an estimate at (x, y) (units) received at ``local_time`` (s, local clock) whose
+        final arc has central angle ``arc`` (rad; None = unknown, not used). Returns the current
+        velocity estimate, or None while fewer than two accurate estimates are known."""
+        if arc is not None and arc <= self.max_arc:
+            if not self._accurate or local_time > self._accurate[-1][0]:
+                self._accurate.append((local_time, x, y))
+        return self.velocity()
+
+    def velocity(self) -> tuple[float, float] | None:
+        if len(self._accurate) < 2:
+            return None
+        (t0, x0, y0), (t1, x1, y1) = self._accurate[0], self._accurate[-1]
+        return (x1 - x0) / (t1 - t0), (y1 - y0) / (t1 - t0)
+
+    @property
+    def speed(self) -> float | None:
+        v = self.velocity()
+        return None if v is None else float(np.hypot(*v))

@@ -1,0 +1,51 @@
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from bintrack.velocity import LocalClock, VelocityEstimator
+
+
+def feed(estimator, clock, points, arcs):
+    out = None
+    for (t, x, y), arc in zip(points, arcs):
+        out = estimator.observe(clock.local(t), x, y, arc)
+    return out
+
+
+@given(st.floats(-1e4, 1e4), st.floats(-5, 5), st.floats(-5, 5))
+@settings(max_examples=50, deadline=None)
+def test_exact_on_a_constant_velocity_whatever_the_clock_offset(offset, vx, vy):
+    points = [(t, 10 + vx * t, -3 + vy * t) for t in np.linspace(0, 30, 8)]
+    v = feed(VelocityEstimator(), LocalClock(offset=offset), points, [0.1] * 8)
+    assert v == pytest.approx((vx, vy), abs=1e-6)
+
+
+def test_a_clock_skew_scales_the_speed_only():
+    points = [(t, 2.0 * t, 1.0 * t) for t in np.linspace(0, 20, 6)]
+    v = feed(VelocityEstimator(), LocalClock(offset=5.0, skew=0.01), points, [0.1] * 6)
+    assert v == pytest.approx((2.0 / 1.01, 1.0 / 1.01))
+
+
+def test_long_arcs_are_not_used():
+    est = VelocityEstimator(max_arc=0.3)
+    assert est.observe(0.0, 0.0, 0.0, 0.1) is None
+    assert est.observe(1.0, 50.0, 50.0, 2.5) is None  # a long arc: a poor location, ignored
+    assert est.observe(2.0, 4.0, 0.0, None) is None  # no arc known: ignored
+    assert est.observe(4.0, 8.0, 0.0, 0.2) == pytest.approx((2.0, 0.0))
+
+
+def test_follows_a_change_of_speed_after_span_estimates():
+    est = VelocityEstimator(span=3)
+    for t in range(5):
+        est.observe(float(t), 1.0 * t, 0.0, 0.1)
+    for t in range(5, 10):
+        est.observe(float(t), 4.0 + 3.0 * (t - 4), 0.0, 0.1)
+    assert est.velocity() == pytest.approx((3.0, 0.0))
+
+
+def test_bad_parameters_are_refused():
+    with pytest.raises(ValueError):
+        VelocityEstimator(max_arc=0)
+    with pytest.raises(ValueError):
+        VelocityEstimator(span=1)
