@@ -6,6 +6,7 @@ from collections.abc import Callable
 
 from ..messages import Deployment
 from .base import Tracker
+from .arc import ArcTracker
 from .baselines import LineFitTracker, WeightedCentroidTracker
 
 # name -> factory(deployment, speed=…, window=…)
@@ -14,6 +15,7 @@ _FACTORIES: dict[str, Callable[..., Tracker]] = {
     "distance-weight": lambda d, speed=None, window=10: WeightedCentroidTracker(d, "distance", speed),
     "duration-weight": lambda d, speed=None, window=10: WeightedCentroidTracker(d, "duration", speed),
     "line-fit": lambda d, speed=None, window=10: LineFitTracker(d, speed, window),
+    "arc": lambda d, speed=None, window=10: ArcTracker(d),
 }
 
 TRACKER_NAMES = tuple(_FACTORIES)
