@@ -64,12 +64,12 @@ def uniform_dataset(tmp_path_factory) -> Path:
     return folder
 
 
-@pytest.mark.parametrize("tracker", BASELINES)
+@pytest.mark.parametrize("tracker", (*BASELINES, "arc"))
 def test_live_equals_offline_on_a_uniform_dataset(uniform_dataset, tracker, tmp_path):
     live_and_offline(uniform_dataset, tracker, tmp_path)
 
 
-@pytest.mark.parametrize("tracker", BASELINES)
+@pytest.mark.parametrize("tracker", (*BASELINES, "arc"))
 def test_live_equals_offline_on_darpa_grid_3(tracker, tmp_path):
     live_and_offline(DARPA3, tracker, tmp_path)
 
