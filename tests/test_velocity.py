@@ -49,3 +49,36 @@ def test_bad_parameters_are_refused():
         VelocityEstimator(max_arc=0)
     with pytest.raises(ValueError):
         VelocityEstimator(span=1)
+
+
+def _arc_rows(**clock):
+    from bintrack.formats import open_dataset, write_dataset
+    from bintrack.pipeline import output_rows, run_tracker
+    from bintrack.sim.scenarios import simulate
+    from bintrack.trackers import make_tracker
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as tmp:
+        result = simulate("uniform-800", seed=3, sensing_range=40.0, trajectory="linear", **clock)
+        ds = open_dataset(write_dataset(Path(tmp) / "d", *result))
+        return ds.truth(), list(output_rows(run_tracker(ds, make_tracker("arc", ds.deployment))))
+
+
+def test_arc_tracker_velocity_in_the_paper_setting_and_without_clock_synchronisation():
+    from bintrack.metrics import truth_paths, velocity_errors
+
+    truth, rows = _arc_rows()
+    with_velocity = [r for r in rows if r.vx is not None]
+    assert len(with_velocity) > 0.9 * len(rows)
+    path = next(iter(truth_paths(truth).values()))
+    errors = velocity_errors(with_velocity, path)
+    assert np.nanmedian(errors) < 0.15  # speed R/15 = 2.67 units/s; paper §5.4: mean 0.076
+    # per-node clock offsets of up to ±1000 s change nothing; skews of ±0.1 % scale slightly
+    _, offset_rows = _arc_rows(clock_offset=1000.0)
+    assert [r.vx is None for r in offset_rows] == [r.vx is None for r in rows]
+    both = [(a, b) for a, b in zip(offset_rows, rows) if a.vx is not None]
+    assert np.allclose([(a.vx, a.vy) for a, _ in both], [(b.vx, b.vy) for _, b in both], atol=1e-6)
+    _, skewed_rows = _arc_rows(clock_skew=0.001)
+    assert [(r.x, r.y) for r in skewed_rows] == [(r.x, r.y) for r in rows]
+    assert np.nanmedian(velocity_errors([r for r in skewed_rows if r.vx is not None], path)) < 0.15

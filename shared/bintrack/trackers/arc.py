@@ -8,7 +8,9 @@ full circle if its disk contains the circle). The arc the target crosses is eq. 
     FA = 2π & (arcs of neighbours reporting 1) − (arcs of neighbours reporting 0),
 
 and the estimate is FA's midpoint on the circle (§3.2.2), with ``arc`` its central angle (rad)
-and ``weight`` = |circle|/|arc| = 2π/arc (eq. 2).
+and ``weight`` = |circle|/|arc| = 2π/arc (eq. 2). Each estimate reaches the node's neighbours,
+which time it on their own clocks (``clock_offset``, ``clock_skew``); a node's velocity, sent
+with its estimates, comes from the accurate estimates it has heard (§3.2.3, :mod:`bintrack.velocity`).
 
 Decisions beyond the paper's text:
 
@@ -57,6 +59,7 @@ import math
 import numpy as np
 
 from ..arcs import TOL, Arc, ArcSet, depth_extreme, overlap_matrix
+from ..velocity import LocalClock, VelocityEstimator
 from ..geometry import TWO_PI, normalize_angle
 from ..messages import Deployment, LocalEstimate, Transition
 from .base import DiskNetwork, SimultaneousTransitions
@@ -142,6 +145,9 @@ class ArcTracker:
         self.last_xy = np.zeros((len(self.net), 2))
         self.pending = SimultaneousTransitions()
         self._table: dict[int, tuple[np.ndarray, ...]] = {}
+        sensors = deployment.by_id()
+        self.clocks = [LocalClock(sensors[sid].clock_offset, sensors[sid].clock_skew) for sid in self.net.ids]
+        self.velocity = [VelocityEstimator() for _ in self.net.ids]
 
     # ------------------------------------------------------------------ push interface
 
@@ -268,5 +274,15 @@ class ArcTracker:
             x, y, arc, weight = self.estimate(i)
             self.last_t[i] = tr.t
             self.last_xy[i] = (x, y)
-            out.append(LocalEstimate(t=tr.t, node=tr.sensor, tracker=self.name, x=x, y=y, arc=arc, weight=weight))
+            velocity = self._share(i, tr.t, x, y, arc)
+            vx, vy = velocity if velocity is not None else (None, None)
+            out.append(LocalEstimate(t=tr.t, node=tr.sensor, tracker=self.name, x=x, y=y, vx=vx, vy=vy,
+                                     arc=arc, weight=weight))
         return out
+
+    def _share(self, i: int, t: float, x: float, y: float, arc: float) -> tuple[float, float] | None:
+        """Node i's estimate reaches i and its neighbours, each timing it on its own clock
+        (§3.2.3); returns i's velocity estimate (units/s) with it included."""
+        for j in self.net.neighbours[i]:
+            self.velocity[j].observe(self.clocks[j].local(t), x, y, arc)
+        return self.velocity[i].observe(self.clocks[i].local(t), x, y, arc)
