@@ -92,9 +92,7 @@ def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
             config.insert_json5("connect/endpoints", json.dumps(connect))
         if args.listen:
             config.insert_json5("listen/endpoints", json.dumps(args.listen))
-    except ValueError:
-        raise
-    except Exception as exc:  # zenoh.ZError and friends: a bad file or key
+    except zenoh.ZError as exc:  # a missing or bad file, an unknown key, a value that is not JSON5
         raise ValueError(f"bad Zenoh configuration: {exc}") from None
     return config
 
