@@ -44,6 +44,13 @@ def test_follows_a_change_of_speed_after_span_estimates():
     assert est.velocity() == pytest.approx((3.0, 0.0))
 
 
+def test_no_velocity_from_a_displacement_smaller_than_the_positions_uncertainty():
+    est = VelocityEstimator(max_arc=0.5)
+    assert est.observe(0.00, 0.0, 0.0, 0.2, radius=40.0) is None  # uncertainty 4 units each
+    assert est.observe(0.05, 9.0, 0.0, 0.2, radius=40.0) is None  # 9 < 2·(4 + 4): mostly error
+    assert est.observe(6.00, 17.0, 0.0, 0.2, radius=40.0) is not None
+
+
 def test_bad_parameters_are_refused():
     with pytest.raises(ValueError):
         VelocityEstimator(max_arc=0)

@@ -20,6 +20,7 @@ import numpy as np
 
 DEFAULT_MAX_ARC = 0.5  # rad: an estimate within ±R/4 of the target along the circle
 DEFAULT_SPAN = 24  # accurate estimates in the fit
+MIN_BASELINE = 2.0  # the displacement must be this many times the two ends' position uncertainty
 
 
 @dataclass(frozen=True)
@@ -40,21 +41,29 @@ class VelocityEstimator:
         if not max_arc > 0 or span < 2:
             raise ValueError("max_arc must be > 0 and span at least 2")
         self.max_arc = max_arc
-        self._accurate: deque[tuple[float, float, float]] = deque(maxlen=span)
+        self._accurate: deque[tuple[float, float, float, float]] = deque(maxlen=span)
 
-    def observe(self, local_time: float, x: float, y: float, arc: float | None) -> tuple[float, float] | None:
+    def observe(self, local_time: float, x: float, y: float, arc: float | None,
+                radius: float | None = None) -> tuple[float, float] | None:
         """Take an estimate at (x, y) (units) received at ``local_time`` (s, local clock) whose
-        final arc has central angle ``arc`` (rad; None = unknown, not used). Returns the current
-        velocity estimate, or None while fewer than two accurate estimates are known."""
+        final arc has central angle ``arc`` (rad; None = unknown, not used) on a circle of
+        ``radius`` (units; its position uncertainty is then radius·arc/2). Returns the current
+        velocity estimate, or None while there is none (see :meth:`velocity`)."""
         if arc is not None and arc <= self.max_arc:
             if not self._accurate or local_time > self._accurate[-1][0]:
-                self._accurate.append((local_time, x, y))
+                uncertainty = 0.0 if radius is None else radius * arc / 2
+                self._accurate.append((local_time, x, y, uncertainty))
         return self.velocity()
 
     def velocity(self) -> tuple[float, float] | None:
+        """The least-squares velocity (units/s), or None with fewer than two accurate estimates
+        or while the oldest and newest are closer than MIN_BASELINE times their summed position
+        uncertainty (a displacement that small is mostly error)."""
         if len(self._accurate) < 2:
             return None
-        t, x, y = np.array(self._accurate).T
+        t, x, y, u = np.array(self._accurate).T
+        if np.hypot(x[-1] - x[0], y[-1] - y[0]) < MIN_BASELINE * (u[0] + u[-1]):
+            return None
         t = t - t.mean()
         denominator = float(t @ t)
         return float(t @ (x - x.mean()) / denominator), float(t @ (y - y.mean()) / denominator)

@@ -283,6 +283,7 @@ class ArcTracker:
     def _share(self, i: int, t: float, x: float, y: float, arc: float) -> tuple[float, float] | None:
         """Node i's estimate reaches i and its neighbours, each timing it on its own clock
         (§3.2.3); returns i's velocity estimate (units/s) with it included."""
+        radius = self.net.ranges[i]
         for j in self.net.neighbours[i]:
-            self.velocity[j].observe(self.clocks[j].local(t), x, y, arc)
-        return self.velocity[i].observe(self.clocks[i].local(t), x, y, arc)
+            self.velocity[j].observe(self.clocks[j].local(t), x, y, arc, radius)
+        return self.velocity[i].observe(self.clocks[i].local(t), x, y, arc, radius)
