@@ -5,9 +5,12 @@ target speed R/15 units/s, trajectories (linear, circular, random turns) confine
 central 650 × 650 square; fault models none, packet collision (gap 1e-4 s, abandon within
 0.01 s), wrong reports (5 % / 1 %) and both; 10 runs (seeds) per cell, 95 % confidence
 intervals. Prints ours beside the paper's value for every cell, and whether ours is within the
-paper's value + 15 % (the issue's bar), and writes a plot like the paper's tables.
+paper's value + 15 % (the issue's bar), and writes a plot like the paper's tables. Then,
+unless ``--tables-only``, the rest of paper 001's figures with the same settings and seeds:
+``paper001_figures.py`` (Figs. 14–15 with the four baselines, §5.4 velocity, §5.3 message
+counts) and ``paper001_trajectory.py`` (§5.5 trajectory accuracy); each also runs alone.
 
-Run: ``.venv/bin/python benchmarks/paper001.py [--runs 10] [--jobs 2] [--plot docs/paper001_tables.png]``
+Run: ``.venv/bin/python benchmarks/paper001.py [--runs 10] [--jobs 2] [--tables-only]`` (≈ 15 min)
 """
 
 from __future__ import annotations
@@ -146,8 +149,19 @@ def main() -> int:
     parser.add_argument("--runs", type=int, default=10, help="runs (seeds) per cell (default: %(default)s)")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes (default: %(default)s)")
     parser.add_argument("--plot", type=Path, default=Path("docs/paper001_tables.png"), help="PNG to write")
+    parser.add_argument("--tables-only", action="store_true", help="only Tables I–III")
     args = parser.parse_args()
-    return run(args.runs, args.jobs, args.plot)
+    status = run(args.runs, args.jobs, args.plot)
+    if status or args.tables_only:
+        return status
+    import paper001_figures
+    import paper001_trajectory
+
+    print("\n" + "=" * 100)
+    status = paper001_figures.run(args.runs, args.runs, 20, paper001_figures.default_distances(), args.jobs,
+                                  Path("docs/paper001_fig14_15.png"), Path("docs/paper001_velocity.png"))
+    print("\n" + "=" * 100)
+    return status or paper001_trajectory.run(args.runs, args.jobs, Path("docs/paper001_trajectory.png"))
 
 
 if __name__ == "__main__":

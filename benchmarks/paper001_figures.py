@@ -314,6 +314,11 @@ def _plot_velocity(series, path: Path) -> None:
     fig.savefig(path, dpi=100)
 
 
+def default_distances() -> list[float]:
+    """One side of the central square, and the D at which eq. 27 gives the paper's 474 at R = 40."""
+    return [CENTRAL_SIDE, round(PAPER_MESSAGES[40] / (4 * 40 * RHO))]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=10, help="runs (seeds) per R and model, Figs. 14–15 (default: %(default)s)")
@@ -327,7 +332,7 @@ def main() -> int:
     parser.add_argument("--velocity-plot", type=Path, default=Path("docs/paper001_velocity.png"),
                         help="PNG for Figs. 16–17")
     args = parser.parse_args()
-    distances = args.distance or [CENTRAL_SIDE, round(PAPER_MESSAGES[40] / (4 * 40 * RHO))]
+    distances = args.distance or default_distances()
     return run(args.runs, args.velocity_runs, args.message_runs, distances, args.jobs, args.plot, args.velocity_plot)
 
 
