@@ -23,11 +23,9 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-from scipy import stats
-
 from bintrack.evaluation import evaluate
 from bintrack.formats import open_dataset, write_dataset, write_tracks
+from bintrack.metrics import mean_ci
 from bintrack.pipeline import output_rows, run_tracker
 from bintrack.sim.scenarios import simulate
 from bintrack.trackers import BASELINES, make_tracker
@@ -46,12 +44,6 @@ def textbook_equal_weight(sensing_range: float) -> float:
     return math.sqrt(math.pi / 2) / (2 * math.sqrt(n))
 
 
-def mean_ci(values: list[float]) -> tuple[float, float]:
-    """Mean and half-width of the 95 % Student-t confidence interval."""
-    a = np.asarray(values)
-    if len(a) < 2:
-        return float(a.mean()), float("nan")
-    return float(a.mean()), float(stats.t.ppf(0.975, len(a) - 1) * a.std(ddof=1) / math.sqrt(len(a)))
 
 
 def run(runs: int, plot: Path | None) -> int:

@@ -16,7 +16,6 @@ Run: ``.venv/bin/python benchmarks/paper001.py [--runs 10] [--jobs 2] [--tables-
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import tempfile
 import time
@@ -24,7 +23,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
+
+from bintrack.metrics import mean_ci
 
 RANGES = (40, 60, 80, 100, 120, 150)
 TRAJECTORIES = ("linear", "circular", "random")
@@ -76,10 +76,6 @@ def one_run(job: tuple[str, str, int, int]) -> tuple[tuple[str, str, int], float
     return (trajectory, faults, sensing_range), float(value), [e.arc for e in estimates]
 
 
-def mean_ci(values: list[float]) -> tuple[float, float]:
-    a = np.asarray(values, dtype=float)
-    half = stats.t.ppf(0.975, len(a) - 1) * a.std(ddof=1) / math.sqrt(len(a)) if len(a) > 1 else float("nan")
-    return float(a.mean()), float(half)
 
 
 def run(runs: int, jobs: int, plot: Path | None) -> int:

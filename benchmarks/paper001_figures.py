@@ -34,7 +34,8 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
+
+from bintrack.metrics import mean_ci
 
 RANGES = (40, 60, 80, 100, 120, 150)
 TRACKERS = ("arc", "equal-weight", "distance-weight", "duration-weight", "line-fit")
@@ -141,10 +142,6 @@ def message_job(job):
     return job, (len(times), inner, path.length, expected)
 
 
-def mean_ci(values) -> tuple[float, float]:
-    a = np.asarray(values, dtype=float)
-    half = stats.t.ppf(0.975, len(a) - 1) * a.std(ddof=1) / math.sqrt(len(a)) if len(a) > 1 else float("nan")
-    return float(a.mean()), float(half)
 
 
 def _cost(job) -> float:

@@ -35,7 +35,8 @@ from pathlib import Path
 
 import numpy as np
 import shapely
-from scipy import stats
+
+from bintrack.metrics import mean_ci
 
 SENSING_RANGE = 40.0
 TRAJECTORIES = ("linear", "circular", "random")
@@ -113,11 +114,6 @@ def one_run(job: tuple[str, str, int]) -> dict:
     }
 
 
-def mean_ci(values) -> tuple[float, float]:
-    """Mean and half-width of its 95 % confidence interval (Student t)."""
-    a = np.asarray(values, dtype=float)
-    half = stats.t.ppf(0.975, len(a) - 1) * a.std(ddof=1) / math.sqrt(len(a)) if len(a) > 1 else float("nan")
-    return float(a.mean()), float(half)
 
 
 def run(runs: int, jobs: int, plot: Path | None) -> int:

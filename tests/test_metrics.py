@@ -204,3 +204,12 @@ def test_one_target_is_matched_to_one_object_only():
     paths = truth_paths(straight("p1", 0, 10))
     objects = [ObjectRow(1, 0, 2, 0, 0, 10, 0, 1, 0), ObjectRow(2, 1, 9, 0, 1, 10, 0, 1, 0)]
     assert [(o.object, t) for o, t in match_objects(objects, paths)] == [(2, "p1")]
+
+
+def test_mean_ci_is_the_student_t_interval():
+    from bintrack.metrics import mean_ci
+
+    mean, half = mean_ci([1.0, 2.0, 3.0, 4.0])
+    assert mean == 2.5
+    assert half == pytest.approx(3.182446 * 1.290994 / 2.0, rel=1e-5)  # t(0.975, 3) · s / √n
+    assert np.isnan(mean_ci([5.0])[1])

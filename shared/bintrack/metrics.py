@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
+from scipy import stats
 from scipy.optimize import linear_sum_assignment
 
 from .formats import ObjectRow, TrackRow, TruthRow
@@ -146,6 +147,16 @@ class ErrorStats:
 
 
 # --------------------------------------------------------------------------- single target
+
+
+def mean_ci(values, level: float = 0.95) -> tuple[float, float]:
+    """Mean of ``values`` and the half-width of its Student-t confidence interval at ``level``
+    (NaN with fewer than two values): the "mean ± CI over runs" of the papers' figures."""
+    a = np.asarray(values, dtype=float)
+    if len(a) < 2:
+        return float(a.mean()), float("nan")
+    half = stats.t.ppf(0.5 + level / 2, len(a) - 1) * a.std(ddof=1) / math.sqrt(len(a))
+    return float(a.mean()), float(half)
 
 
 def location_errors(rows: Sequence[TrackRow], paths: Mapping[str, TruthPath]) -> np.ndarray:
