@@ -34,6 +34,7 @@ from .formats import (
     TrackRow,
     fmt,
     open_dataset,
+    open_input,
     read_objects,
     read_tracks,
 )
@@ -126,14 +127,8 @@ def read_result(path: Path | str) -> tuple[str, list[TrackRow] | list[ObjectRow]
     or ('objects', rows). Raises :class:`FormatError` for anything malformed."""
     path = Path(path)
     try:
-        with open(path, newline="", encoding="utf-8") as handle:
+        with open_input(path, "tracks.csv or objects.csv") as handle:
             header = next(csv.reader(handle), None)
-    except FileNotFoundError:
-        raise FormatError(path, None, "file", "not found") from None
-    except IsADirectoryError:
-        raise FormatError(path, None, "file", "is a folder, expected tracks.csv or objects.csv") from None
-    except OSError as exc:
-        raise FormatError(path, None, "file", exc.strerror or str(exc)) from None
     except (csv.Error, UnicodeDecodeError) as exc:
         raise FormatError(path, 1, "header", str(exc)) from None
     columns = [c.strip() for c in header or ()]

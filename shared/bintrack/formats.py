@@ -14,7 +14,7 @@ import re
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple, TextIO
+from typing import IO, NamedTuple, TextIO
 
 from pydantic import ValidationError
 
@@ -127,6 +127,23 @@ def _parse_int(text: str, path: Path, line: int, field: str) -> int:
     return int(value)
 
 
+# --------------------------------------------------------------------------- opening inputs
+
+
+def open_input(path: Path | str, expected: str, binary: bool = False) -> IO:
+    """Open an input file for reading; a missing file, a folder or an unreadable file raises
+    :class:`FormatError` naming it (``expected`` says what should be there, e.g. "tracks.csv")."""
+    path = Path(path)
+    try:
+        return open(path, "rb") if binary else open(path, newline="", encoding="utf-8")
+    except FileNotFoundError:
+        raise FormatError(path, None, "file", "not found") from None
+    except IsADirectoryError:
+        raise FormatError(path, None, "file", f"is a folder, expected {expected}") from None
+    except OSError as exc:
+        raise FormatError(path, None, "file", exc.strerror or str(exc)) from None
+
+
 # --------------------------------------------------------------------------- CSV plumbing
 
 
@@ -136,13 +153,7 @@ def _rows(path: Path, header: tuple[str, ...], required: tuple[str, ...] | None 
     ``required`` columns must be present (default: all of ``header``); others may be missing.
     """
     required = header if required is None else required
-    try:
-        handle = open(path, newline="", encoding="utf-8")
-    except FileNotFoundError:
-        raise FormatError(path, None, "file", "not found") from None
-    except OSError as exc:
-        raise FormatError(path, None, "file", exc.strerror or str(exc)) from None
-    with handle:
+    with open_input(path, f"a CSV file with header {','.join(header)}") as handle:
         reader = csv.reader(handle)
         try:
             columns = next(reader)
@@ -259,12 +270,11 @@ def parse_deployment(text: str, path: Path | str = DEPLOYMENT_FILE) -> Deploymen
 def read_deployment(path: Path | str) -> Deployment:
     """Read and validate a deployment.json file."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise FormatError(path, None, "file", "not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FormatError(path, None, "file", str(exc)) from None
+    with open_input(path, DEPLOYMENT_FILE) as handle:
+        try:
+            text = handle.read()
+        except UnicodeDecodeError as exc:
+            raise FormatError(path, None, "file", str(exc)) from None
     return parse_deployment(text, path)
 
 

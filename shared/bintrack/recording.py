@@ -42,7 +42,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
 from . import __version__
-from .formats import FormatError, deployment_text, parse_deployment
+from .formats import FormatError, deployment_text, open_input, parse_deployment
 from .keys import Keys, parse_key
 from .messages import (
     Clock,
@@ -248,7 +248,7 @@ class Recording:
     def records(self, keep: Callable[[str], bool] | None = None) -> Iterator[Record]:
         """Every record whose key passes ``keep`` (default: all), in log-time order, ties in
         the order they were recorded. Raises FormatError if the file is corrupt."""
-        with _open_file(self.path) as handle:
+        with open_input(self.path, "an .mcap recording", binary=True) as handle:
             if self.complete:
                 try:
                     reader = SeekingReader(handle)
@@ -300,17 +300,6 @@ def _record(channel: Channel, message: McapMessage) -> Record:
     return Record(channel.topic, message.log_time / 1e9, bytes(message.data), message.publish_time)
 
 
-def _open_file(path: Path) -> IO[bytes]:
-    try:
-        return open(path, "rb")
-    except FileNotFoundError:
-        raise FormatError(path, None, "file", "not found") from None
-    except IsADirectoryError:
-        raise FormatError(path, None, "file", "is a folder, expected an .mcap recording") from None
-    except OSError as exc:
-        raise FormatError(path, None, "file", exc.strerror or str(exc)) from None
-
-
 @dataclass
 class _Scan:
     """What a linear read of a (possibly truncated) file found."""
@@ -354,7 +343,7 @@ def open_recording(path: Path | str) -> Recording:
     an MCAP file that is not a bintrack recording.
     """
     path = Path(path)
-    with _open_file(path) as handle:
+    with open_input(path, "an .mcap recording", binary=True) as handle:
         magic = handle.read(len(MCAP_MAGIC))
         if magic != MCAP_MAGIC:
             raise FormatError(path, None, "file", "empty file, expected an MCAP recording" if not magic
