@@ -38,11 +38,12 @@ class Arc(NamedTuple):
         return normalize_angle(self.start + 0.5 * self.length)
 
     def distance(self, theta: float) -> float:
-        """Angular distance (rad, [0, π]) from ``theta`` to the nearest point of the arc."""
+        """Angular distance (rad, [0, π]) from ``theta`` to the nearest point of the arc; 0 within
+        ``TOL`` of it, as :meth:`ArcSet.contains` counts touching endpoints."""
         if self.full:
             return 0.0
         past_start = normalize_angle(theta - self.start)
-        if past_start <= self.length:
+        if past_start <= self.length + TOL or past_start >= TWO_PI - TOL:
             return 0.0
         return min(past_start - self.length, TWO_PI - past_start)
 
@@ -95,7 +96,7 @@ class ArcSet:
         for start, length in arcs:
             if length >= TWO_PI - TOL:
                 clean.append(Arc(0.0, TWO_PI))
-            elif length > 0:
+            elif length > TOL:  # judged on the given length: rounded endpoints could keep a TOL-long piece
                 clean.append(Arc(normalize_angle(start), float(length)))
         self.arcs: tuple[Arc, ...] = _arcs(_linear(clean))
 
