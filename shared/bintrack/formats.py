@@ -390,10 +390,6 @@ def iter_events(path: Path | str, deployment: Deployment) -> Iterator[Event]:
         yield Event(t, sensor_id, value)
 
 
-def read_events(path: Path | str, deployment: Deployment) -> list[Event]:
-    return list(iter_events(path, deployment))
-
-
 def write_events(path: Path | str, events: Iterable[Event]) -> int:
     """Write events.csv (rows must already be in time order); times with ns resolution."""
     return _write_csv(Path(path), EVENTS_HEADER, ((fmt(e.t, 9), e.sensor, str(int(e.value))) for e in events))
