@@ -347,17 +347,19 @@ class MultiTargetScores:
 
 
 def multi_target_scores(rows: Sequence[TrackRow], paths: Mapping[str, TruthPath], c: float,
-                        p: float = 2.0) -> MultiTargetScores:
+                        p: float = 2.0, times: Iterable[float] | None = None) -> MultiTargetScores:
     """Score multi-target tracks (paper 004) scan by scan.
 
-    A scan is each distinct time of ``rows``; at it, :func:`gospa` compares the track
+    A scan is each distinct time of ``rows`` (and each of ``times``, the tracker's scan times,
+    so that scans where it reported no track count too); at it, :func:`gospa` compares the track
     positions with the positions of the targets existing then. An identity switch is counted
     when a target's assigned track id (an assignment within ``c``) differs from the id it was
     last assigned; scans where it is unassigned do not reset that memory.
     """
-    by_time: dict[float, list[TrackRow]] = {}
+    by_time: dict[float, list[TrackRow]] = {t: [] for t in (times or ())}
     for row in sorted(rows, key=lambda r: r.t):
         by_time.setdefault(row.t, []).append(row)
+    by_time = dict(sorted(by_time.items()))
     scans = []
     last_track: dict[str, int] = {}
     switches = 0

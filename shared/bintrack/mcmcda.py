@@ -1,0 +1,574 @@
+"""Online Markov chain Monte Carlo data association (paper 004 §IV; Oh, Russell and Sastry,
+"Markov chain Monte Carlo data association for multi-target tracking", IEEE TAC 54(3), 2009).
+
+The state is a partition ω of the position reports of a sliding window of scans into tracks and
+false alarms (paper 004 §II, conditions 1–5: a track has at most one report per scan and at
+least two reports). Its posterior is eq. (3),
+
+    P(ω|Y) ∝ P(Y|ω) ∏_t p_z^{z(t)} (1−p_z)^{c(t)} p_d^{d(t)} (1−p_d)^{g(t)} λ_b^{a(t)} λ_f^{f(t)},
+
+with P(Y|ω) the product over tracks of the Kalman-filter innovation likelihoods of a constant-
+velocity model (the first report of a new track is uniform over the region, which λ_b, a rate
+per unit area, already accounts for). Because every term factors over tracks, the chain keeps
+each track's log-score relative to leaving its reports as false alarms, and a move changes the
+log-posterior by the change in the scores of the tracks it touches.
+
+Moves (Oh et al. §IV-B): birth/death, split/merge, extension/reduction, track update and track
+switch, chosen uniformly (birth only when there is no track); Metropolis–Hastings acceptance
+eq. (5); the MAP is kept (Algorithm 1). Extension proposals grow a track forward: choose a gap
+d ∈ 1..d̄+1 scans uniformly, then a false alarm within the gate at that scan uniformly, and stop
+with probability γ. Proposal probabilities enter the acceptance ratio; the probability that an
+extension stops because no candidate lies in the gate is neglected (it is small next to γ).
+
+Online (Oh et al. §IV-C): each scan the window slides; the chain starts from the previous MAP
+with the new reports as false alarms. Reports that leave the window are fixed with their track:
+the track's filtered state becomes its *anchor*, from which the track continues inside the
+window, and whose identity it keeps. New tracks take the identity of the previous MAP's track
+they share most reports with, else a fresh one.
+
+The Kalman filter runs per axis (x and y independent: constant velocity with white-acceleration
+spectral density q, measurement variance the report covariance's diagonal), which keeps the
+chain's inner loop in scalar arithmetic; the report covariance's off-diagonal term is dropped.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections import deque
+from dataclasses import dataclass, field
+
+from .messages import PositionReports, Track, TrackSet
+
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+@dataclass(frozen=True)
+class MCMCDAConfig:
+    """Parameters of the model (eq. 3, Kalman filter) and of the online sampler."""
+
+    window: int = 10
+    """sliding-window length, scans"""
+    n_mc: int = 500
+    """Metropolis–Hastings iterations per scan"""
+    seed: int = 0
+    """seed of the sampler's random stream"""
+    process_noise: float = 0.5
+    """q: white-acceleration spectral density of the constant-velocity model, units²/s³"""
+    extra_variance: float = 4.0
+    """added to each report's variance per axis, units² (a cluster's spread understates the
+    error of its centre)"""
+    initial_speed: float = 1.5
+    """standard deviation of a new track's velocity per axis, units/s"""
+    pd: float = 0.8
+    """probability that a present target yields a report in a scan"""
+    false_alarm_rate: float = 1e-3
+    """λ_f: false reports per unit area per scan"""
+    birth_rate: float = 1e-5
+    """λ_b: new targets per unit area per scan"""
+    termination: float = 0.05
+    """p_z: probability that a target disappears between scans"""
+    max_speed: float = 3.0
+    """v̄: fastest target, units/s (gates which reports may follow each other in a track)"""
+    gate_margin: float = 4.0
+    """added to v̄·Δt in that gate, units (report noise)"""
+    max_misses: int = 3
+    """d̄: consecutive scans a track may go unreported"""
+    stop: float = 0.3
+    """γ: probability that an extension proposal stops after each added report"""
+    min_reports: int = 3
+    """reports a track needs (fixed and in the window) before it is published"""
+    coast: int = 1
+    """scans a published track is predicted past its last report before it is dropped"""
+
+
+@dataclass
+class Anchor:
+    """The fixed part of a track: its identity and per-axis filtered state at its last fixed report."""
+
+    identity: int
+    scan: int
+    t: float
+    x: tuple[float, float, float, float, float]  # p, v, P_pp, P_pv, P_vv of axis x
+    y: tuple[float, float, float, float, float]
+    reports: int
+
+
+@dataclass
+class _Report:
+    scan: int
+    t: float
+    x: float
+    y: float
+    rx: float
+    ry: float
+
+
+def _predict(state, dt: float, q: float):
+    p, v, ppp, ppv, pvv = state
+    return (p + v * dt, v,
+            ppp + 2 * dt * ppv + dt * dt * pvv + q * dt ** 3 / 3.0,
+            ppv + dt * pvv + q * dt * dt / 2.0,
+            pvv + q * dt)
+
+
+def _update(state, z: float, r: float):
+    """Kalman update of one axis with measurement z (variance r); returns (state, log N(ν; 0, S))."""
+    p, v, ppp, ppv, pvv = state
+    s = ppp + r
+    nu = z - p
+    kp, kv = ppp / s, ppv / s
+    new = (p + kp * nu, v + kv * nu, ppp - kp * ppp, ppv - kp * ppv, pvv - kv * ppv)
+    return new, -0.5 * (_LOG_2PI + math.log(s) + nu * nu / s)
+
+
+@dataclass
+class _Track:
+    reports: tuple[int, ...]
+    anchor: Anchor | None = None
+    label: int | None = None
+
+
+@dataclass
+class _Window:
+    """The reports of the window and the gate between them."""
+
+    first: int  # first scan of the window
+    now: int  # current (last) scan
+    reports: dict[int, _Report] = field(default_factory=dict)
+    by_scan: dict[int, list[int]] = field(default_factory=dict)
+
+
+class OnlineMCMCDA:
+    """Online MCMCDA over a sliding window of scans; ``step`` per scan gives the scan's tracks."""
+
+    def __init__(self, config: MCMCDAConfig = MCMCDAConfig(), tracker_name: str = "mcmcda"):
+        self.config = config
+        self.name = tracker_name
+        self._rng = random.Random(config.seed)
+        self._scans: deque[tuple[int, float, list[int]]] = deque()
+        self._reports: dict[int, _Report] = {}
+        self._next_report = 0
+        self._scan = -1
+        self._tracks: list[_Track] = []  # the current MAP
+        self._next_identity = 1
+        self._log_lf = math.log(config.false_alarm_rate)
+        self._log_lb = math.log(config.birth_rate)
+        self.last_score = 0.0
+
+    # ------------------------------------------------------------------ public
+
+    def step(self, scan: PositionReports) -> TrackSet:
+        """Take one scan's reports (event time ``scan.t``, s), slide the window, run n_mc MH
+        iterations from the previous MAP and return the published tracks at ``scan.t``."""
+        self._scan += 1
+        ids = []
+        for r in scan.reports:
+            rid = self._next_report
+            self._next_report += 1
+            extra = self.config.extra_variance
+            self._reports[rid] = _Report(self._scan, scan.t, r.x, r.y, max(r.cov[0][0] + extra, 1e-6),
+                                         max(r.cov[1][1] + extra, 1e-6))
+            ids.append(rid)
+        self._scans.append((self._scan, scan.t, ids))
+        while len(self._scans) > self.config.window:
+            self._fix_oldest()
+        self._expire_anchors()
+        self._times = {k: t for k, t, _ in self._scans}
+        self._first = self._scans[0][0]
+        self._by_scan = {k: ids for k, _, ids in self._scans}
+        previous = [(_Track(t.reports, t.anchor, t.label)) for t in self._tracks]
+        self._run_chain()
+        self._label(previous)
+        return self._publish(scan.t)
+
+    # ------------------------------------------------------------------ window
+
+    def _fix_oldest(self) -> None:
+        k, t, ids = self._scans.popleft()
+        gone = set(ids)
+        for track in self._tracks:
+            fixed = [r for r in track.reports if r in gone]
+            if not fixed:
+                continue
+            rid = fixed[0]
+            rep = self._reports[rid]
+            if track.label is None:
+                track.label = self._new_identity()
+            if track.anchor is None:
+                ax, ay = self._initial(rep)
+                track.anchor = Anchor(track.label, k, t, ax, ay, 1)
+            else:
+                a = track.anchor
+                sx, _ = _update(_predict(a.x, t - a.t, self.config.process_noise), rep.x, rep.rx)
+                sy, _ = _update(_predict(a.y, t - a.t, self.config.process_noise), rep.y, rep.ry)
+                track.anchor = Anchor(a.identity, k, t, sx, sy, a.reports + 1)
+            track.reports = tuple(r for r in track.reports if r != rid)
+        for rid in ids:
+            del self._reports[rid]
+
+    def _expire_anchors(self) -> None:
+        keep = []
+        for track in self._tracks:
+            if not track.reports and (track.anchor is None or self._scan - track.anchor.scan > self.config.max_misses + 1):
+                continue
+            if track.anchor is None and len(track.reports) < 2:
+                continue
+            keep.append(track)
+        self._tracks = keep
+
+    def _new_identity(self) -> int:
+        identity = self._next_identity
+        self._next_identity += 1
+        return identity
+
+    def _initial(self, rep: _Report):
+        v0 = self.config.initial_speed ** 2
+        return (rep.x, 0.0, rep.rx, 0.0, v0), (rep.y, 0.0, rep.ry, 0.0, v0)
+
+    # ------------------------------------------------------------------ scoring
+
+    def _score(self, track: _Track) -> float:
+        """log P contribution of ``track`` relative to its window reports being false alarms."""
+        key = (id(track.anchor) if track.anchor else None, track.reports)
+        cached = self._cache.get(key)
+        if cached is not None:
+            return cached
+        c = self.config
+        reps = [self._reports[r] for r in track.reports]
+        score = 0.0
+        if track.anchor is None:
+            first = reps[0]
+            sx, sy = self._initial(first)
+            last_scan, last_t = first.scan, first.t
+            score += self._log_lb + math.log(c.pd) - self._log_lf
+            rest = reps[1:]
+        else:
+            a = track.anchor
+            sx, sy, last_scan, last_t = a.x, a.y, a.scan, a.t
+            rest = reps
+        log_pd, log_md = math.log(c.pd), math.log1p(-c.pd)
+        log_stay = math.log1p(-c.termination)
+        for rep in rest:
+            gap = rep.scan - last_scan
+            dt = rep.t - last_t
+            sx, lx = _update(_predict(sx, dt, c.process_noise), rep.x, rep.rx)
+            sy, ly = _update(_predict(sy, dt, c.process_noise), rep.y, rep.ry)
+            score += lx + ly + gap * log_stay + (gap - 1) * log_md + log_pd - self._log_lf
+            last_scan, last_t = rep.scan, rep.t
+        # after the last report: terminated at some scan up to now, or still alive undetected
+        m = self._scan - last_scan
+        if m > 0:
+            alive = (1.0 - c.termination) * (1.0 - c.pd)
+            score += math.log(c.termination * (1.0 - alive ** m) / (1.0 - alive) + alive ** m)
+        self._cache[key] = score
+        return score
+
+    # ------------------------------------------------------------------ gate
+
+    def _follows(self, a_scan: int, a_t: float, ax: float, ay: float, rid: int) -> bool:
+        rep = self._reports[rid]
+        gap = rep.scan - a_scan
+        if gap < 1 or gap > self.config.max_misses + 1:
+            return False
+        reach = self.config.max_speed * (rep.t - a_t) + self.config.gate_margin
+        return (rep.x - ax) ** 2 + (rep.y - ay) ** 2 <= reach * reach
+
+    def _end_of(self, track: _Track) -> tuple[int, float, float, float] | None:
+        """(scan, t, x, y) of the track's last report or anchor."""
+        if track.reports:
+            rep = self._reports[track.reports[-1]]
+            return rep.scan, rep.t, rep.x, rep.y
+        if track.anchor is not None:
+            a = track.anchor
+            return a.scan, a.t, a.x[0], a.y[0]
+        return None
+
+    def _valid(self, track: _Track) -> bool:
+        if track.anchor is None and len(track.reports) < 2:
+            return False
+        if track.anchor is not None:
+            a = track.anchor
+            prev = (a.scan, a.t, a.x[0], a.y[0])
+        else:
+            r = self._reports[track.reports[0]]
+            prev = (r.scan, r.t, r.x, r.y)
+        for rid in track.reports[0 if track.anchor is not None else 1:]:
+            if not self._follows(*prev, rid):
+                return False
+            r = self._reports[rid]
+            prev = (r.scan, r.t, r.x, r.y)
+        return True
+
+    def _candidates(self, end: tuple[int, float, float, float], scan: int, free: set[int]) -> list[int]:
+        return [rid for rid in self._by_scan.get(scan, ()) if rid in free and self._follows(*end, rid)]
+
+    # ------------------------------------------------------------------ proposals
+
+    def _extend(self, end, free: set[int], must: bool) -> tuple[list[int], float]:
+        """Grow a path forward from ``end`` through reports of ``free``; (added, log q).
+        ``must``: the first report may not be skipped by the stop draw (a birth needs two)."""
+        c = self.config
+        added: list[int] = []
+        logq = 0.0
+        taken = set()
+        while True:
+            if (added or not must) and self._rng.random() < c.stop:
+                return added, logq + math.log(c.stop)
+            span = min(c.max_misses + 1, self._scan - end[0])
+            if span < 1:
+                return added, logq
+            d = self._rng.randint(1, span)
+            cands = [r for r in self._candidates(end, end[0] + d, free) if r not in taken]
+            if not cands:
+                return added, logq + math.log(1.0 / span)
+            rid = self._rng.choice(cands)
+            logq += -math.log(span) - math.log(len(cands)) + (math.log1p(-c.stop) if (added or not must) else 0.0)
+            added.append(rid)
+            taken.add(rid)
+            rep = self._reports[rid]
+            end = (rep.scan, rep.t, rep.x, rep.y)
+
+    def _path_logq(self, end, path: list[int], free: set[int], must: bool) -> float:
+        """log q of ``_extend`` proposing exactly ``path`` from ``end`` (then stopping)."""
+        c = self.config
+        logq = 0.0
+        taken: set[int] = set()
+        for i, rid in enumerate(path):
+            span = min(c.max_misses + 1, self._scan - end[0])
+            cands = [r for r in self._candidates(end, self._reports[rid].scan, free) if r not in taken]
+            if span < 1 or rid not in cands:
+                return -math.inf
+            logq += -math.log(span) - math.log(len(cands)) + (math.log1p(-c.stop) if (i or not must) else 0.0)
+            taken.add(rid)
+            rep = self._reports[rid]
+            end = (rep.scan, rep.t, rep.x, rep.y)
+        span = min(c.max_misses + 1, self._scan - end[0])
+        return logq + (math.log(c.stop) if span >= 1 else 0.0)
+
+    # ------------------------------------------------------------------ chain
+
+    def _run_chain(self) -> None:
+        self._cache: dict = {}
+        tracks = [_Track(t.reports, t.anchor, t.label) for t in self._tracks]
+        used = {r for t in tracks for r in t.reports}
+        free = {rid for _, _, ids in self._scans for rid in ids} - used
+        score = sum(self._score(t) for t in tracks)
+        best, best_score = [_Track(t.reports, t.anchor, t.label) for t in tracks], score
+        moves = (self._birth, self._death, self._split, self._merge, self._extension, self._reduction,
+                 self._update, self._switch)
+        for _ in range(self.config.n_mc):
+            move = self._birth if not tracks else moves[self._rng.randrange(8)]
+            proposal = move(tracks, free)
+            if proposal is None:
+                continue
+            removed, added, log_ratio = proposal
+            delta = sum(self._score(t) for t in added) - sum(self._score(tracks[i]) for i in removed)
+            log_a = delta + log_ratio
+            if log_a >= 0 or self._rng.random() < math.exp(log_a):
+                for i in sorted(removed, reverse=True):
+                    free.update(tracks[i].reports)
+                    del tracks[i]
+                for t in added:
+                    free.difference_update(t.reports)
+                    tracks.append(t)
+                score += delta
+                if score > best_score + 1e-12:
+                    best = [_Track(t.reports, t.anchor, t.label) for t in tracks]
+                    best_score = score
+        self._tracks = best
+        self.last_score = best_score
+
+    def _ratio_k(self, k_before: int, k_after: int, forward_q: float, reverse_q: float) -> float:
+        # ξ is uniform over the eight moves whenever there is a track; birth only when none
+        xi_f = 1.0 if k_before == 0 else 1.0 / 8
+        xi_r = 1.0 if k_after == 0 else 1.0 / 8
+        return math.log(xi_r) + reverse_q - math.log(xi_f) - forward_q
+
+    def _birth(self, tracks, free):
+        starts = [r for r in free if self._reports[r].scan < self._scan]
+        if not starts:
+            return None
+        starts.sort()
+        first = self._rng.choice(starts)
+        rep = self._reports[first]
+        rest, logq = self._extend((rep.scan, rep.t, rep.x, rep.y), free - {first}, must=True)
+        if not rest:
+            return None
+        new = _Track((first, *rest))
+        deaths = sum(1 for t in tracks if t.anchor is None) + 1
+        return [], [new], self._ratio_k(len(tracks), len(tracks) + 1, -math.log(len(starts)) + logq, -math.log(deaths))
+
+    def _death(self, tracks, free):
+        mortal = [i for i, t in enumerate(tracks) if t.anchor is None]
+        if not mortal:
+            return None
+        i = self._rng.choice(mortal)
+        t = tracks[i]
+        freed = free | set(t.reports)
+        starts = sum(1 for r in freed if self._reports[r].scan < self._scan)
+        rep = self._reports[t.reports[0]]
+        reverse = -math.log(starts) + self._path_logq((rep.scan, rep.t, rep.x, rep.y), list(t.reports[1:]), freed - {t.reports[0]}, True)
+        return [i], [], self._ratio_k(len(tracks), len(tracks) - 1, -math.log(len(mortal)), reverse)
+
+    def _splittable(self, tracks):
+        return [i for i, t in enumerate(tracks) if len(t.reports) >= (2 if t.anchor is not None else 4)]
+
+    def _mergeable(self, tracks):
+        pairs = []
+        for i, a in enumerate(tracks):
+            end = self._end_of(a)
+            if end is None:
+                continue
+            for j, b in enumerate(tracks):
+                if i != j and b.anchor is None and self._follows(*end, b.reports[0]):
+                    pairs.append((i, j))
+        return pairs
+
+    def _split(self, tracks, free):
+        choices = self._splittable(tracks)
+        if not choices:
+            return None
+        i = self._rng.choice(choices)
+        t = tracks[i]
+        lo = 0 if t.anchor is not None else 2
+        points = list(range(lo, len(t.reports) - 1))  # first part keeps reports[:r]
+        r = self._rng.choice(points)
+        head, tail = _Track(t.reports[:r], t.anchor, t.label), _Track(t.reports[r:])
+        after = [x for k, x in enumerate(tracks) if k != i] + [head, tail]
+        merges = len(self._mergeable(after))
+        forward = -math.log(len(choices)) - math.log(len(points))
+        return [i], [head, tail], self._ratio_k(len(tracks), len(tracks) + 1, forward, -math.log(max(merges, 1)))
+
+    def _merge(self, tracks, free):
+        pairs = self._mergeable(tracks)
+        if not pairs:
+            return None
+        i, j = self._rng.choice(pairs)
+        a, b = tracks[i], tracks[j]
+        merged = _Track(a.reports + b.reports, a.anchor, a.label)
+        after = [x for k, x in enumerate(tracks) if k not in (i, j)] + [merged]
+        splits = self._splittable(after)
+        lo = 0 if merged.anchor is not None else 2
+        reverse = -math.log(max(len(splits), 1)) - math.log(max(len(merged.reports) - 1 - lo, 1))
+        return [i, j], [merged], self._ratio_k(len(tracks), len(tracks) - 1, -math.log(len(pairs)), reverse)
+
+    def _extension(self, tracks, free):
+        i = self._rng.randrange(len(tracks))
+        t = tracks[i]
+        end = self._end_of(t)
+        added, logq = self._extend(end, free, must=True)
+        if not added:
+            return None
+        new = _Track(t.reports + tuple(added), t.anchor, t.label)
+        lo = 0 if new.anchor is not None else 2
+        reverse = -math.log(len(tracks)) - math.log(len(new.reports) - lo)
+        return [i], [new], self._ratio_k(len(tracks), len(tracks), -math.log(len(tracks)) + logq, reverse)
+
+    def _reduction(self, tracks, free):
+        i = self._rng.randrange(len(tracks))
+        t = tracks[i]
+        lo = 0 if t.anchor is not None else 2
+        if len(t.reports) <= lo:
+            return None
+        r = self._rng.randrange(lo, len(t.reports))
+        new = _Track(t.reports[:r], t.anchor, t.label)
+        freed = free | set(t.reports[r:])
+        reverse = -math.log(len(tracks)) + self._path_logq(self._end_of(new), list(t.reports[r:]), freed, True)
+        return [i], [new], self._ratio_k(len(tracks), len(tracks), -math.log(len(tracks)) - math.log(len(t.reports) - lo), reverse)
+
+    def _update(self, tracks, free):
+        i = self._rng.randrange(len(tracks))
+        t = tracks[i]
+        lo = 0 if t.anchor is not None else 1
+        if len(t.reports) <= lo:
+            return None
+        r = self._rng.randrange(lo, len(t.reports))
+        keep = _Track(t.reports[:r], t.anchor, t.label)
+        end = self._end_of(keep)
+        freed = free | set(t.reports[r:])
+        added, logq = self._extend(end, freed, must=True)
+        if not added or tuple(added) == t.reports[r:]:
+            return None
+        new = _Track(t.reports[:r] + tuple(added), t.anchor, t.label)
+        reverse = self._path_logq(end, list(t.reports[r:]), freed, True)
+        return [i], [new], reverse - logq
+
+    def _switch(self, tracks, free):
+        if len(tracks) < 2:
+            return None
+        i, j = self._rng.sample(range(len(tracks)), 2)
+        a, b = tracks[i], tracks[j]
+        scans_a = [self._reports[r].scan for r in a.reports]
+        scans_b = [self._reports[r].scan for r in b.reports]
+        both = sorted(set(scans_a) | set(scans_b))
+        if len(both) < 2:
+            return None
+        cut = self._rng.choice(both[:-1])  # switch the reports after scan ``cut``
+        ka = sum(1 for s in scans_a if s <= cut)
+        kb = sum(1 for s in scans_b if s <= cut)
+        new_a = _Track(a.reports[:ka] + b.reports[kb:], a.anchor, a.label)
+        new_b = _Track(b.reports[:kb] + a.reports[ka:], b.anchor, b.label)
+        if new_a.reports == a.reports or not (self._valid(new_a) and self._valid(new_b)):
+            return None
+        return [i, j], [new_a, new_b], 0.0
+
+    # ------------------------------------------------------------------ output
+
+    def _label(self, previous: list[_Track]) -> None:
+        """Give each MAP track the identity of the previous MAP track it shares most reports with."""
+        owner = {}
+        for p in previous:
+            for r in p.reports:
+                owner[r] = p.label
+        taken = set()
+        for t in sorted(self._tracks, key=lambda t: (t.anchor is None, t.reports)):
+            if t.anchor is not None:
+                t.label = t.anchor.identity
+                taken.add(t.label)
+        for t in sorted((t for t in self._tracks if t.anchor is None), key=lambda t: t.reports):
+            votes: dict[int, int] = {}
+            for r in t.reports:
+                label = owner.get(r)
+                if label is not None and label not in taken:
+                    votes[label] = votes.get(label, 0) + 1
+            if votes:
+                t.label = max(sorted(votes), key=votes.get)
+                taken.add(t.label)
+            else:
+                t.label = None
+
+    def _filtered(self, track: _Track):
+        c = self.config
+        if track.anchor is not None:
+            a = track.anchor
+            sx, sy, last_t, count = a.x, a.y, a.t, a.reports
+            reps = [self._reports[r] for r in track.reports]
+        else:
+            first = self._reports[track.reports[0]]
+            sx, sy = self._initial(first)
+            last_t, count = first.t, 1
+            reps = [self._reports[r] for r in track.reports[1:]]
+        for rep in reps:
+            sx, _ = _update(_predict(sx, rep.t - last_t, c.process_noise), rep.x, rep.rx)
+            sy, _ = _update(_predict(sy, rep.t - last_t, c.process_noise), rep.y, rep.ry)
+            last_t = rep.t
+            count += 1
+        return sx, sy, last_t, count
+
+    def _publish(self, t: float) -> TrackSet:
+        c = self.config
+        out = []
+        for track in self._tracks:
+            end = self._end_of(track)
+            if end is None or self._scan - end[0] > c.coast:
+                continue
+            sx, sy, last_t, count = self._filtered(track)
+            if count < c.min_reports:
+                continue
+            if track.label is None:
+                track.label = self._new_identity()
+            dt = t - last_t
+            out.append(Track(track=track.label, x=sx[0] + sx[1] * dt, y=sy[0] + sy[1] * dt, vx=sx[1], vy=sy[1]))
+        out.sort(key=lambda tr: tr.track)
+        return TrackSet(t=t, tracker=self.name, tracks=out)
