@@ -28,7 +28,7 @@ from bintrack.formats import open_dataset, write_dataset, write_tracks
 from bintrack.metrics import mean_ci
 from bintrack.pipeline import output_rows, run_tracker
 from bintrack.sim.scenarios import simulate
-from bintrack.trackers import BASELINES, make_tracker
+from bintrack.trackers import BASELINES, TrackerOptions, make_tracker
 
 RANGES = (40, 60, 80, 100, 120, 150)
 # paper 001 Table I, "ideal sensing" row (arc tracker, linear trajectory), error / R
@@ -56,7 +56,7 @@ def run(runs: int, plot: Path | None) -> int:
                 folder = write_dataset(Path(tmp) / f"r{sensing_range}-{seed}", *result)
                 dataset = open_dataset(folder)
                 for name in BASELINES:
-                    tracker = make_tracker(name, dataset.deployment, speed=sensing_range / 15.0)
+                    tracker = make_tracker(name, dataset.deployment, TrackerOptions(speed=sensing_range / 15.0))
                     tracks = folder / f"{name}.csv"
                     write_tracks(tracks, output_rows(run_tracker(dataset, tracker)))
                     value = evaluate(dataset, tracks).value("location_error_over_R_mean")

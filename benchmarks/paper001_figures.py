@@ -79,7 +79,7 @@ def location_job(job):
     from bintrack.evaluation import evaluate
     from bintrack.formats import write_tracks
     from bintrack.pipeline import output_rows, run_tracker
-    from bintrack.trackers import make_tracker
+    from bintrack.trackers import TrackerOptions, make_tracker
 
     _, model, law, sensing_range, seed = job
     values = {}
@@ -89,7 +89,7 @@ def location_job(job):
         for name in TRACKERS:
             speed = None if name == "arc" else sensing_range / 15.0
             tracks = dataset.path / f"{name}.csv"
-            write_tracks(tracks, output_rows(run_tracker(dataset, make_tracker(name, dataset.deployment, speed=speed))))
+            write_tracks(tracks, output_rows(run_tracker(dataset, make_tracker(name, dataset.deployment, TrackerOptions(speed=speed)))))
             values[name] = float(evaluate(dataset, tracks).value("location_error_over_R_mean"))
     return job, values
 

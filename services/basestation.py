@@ -1,68 +1,117 @@
-"""Base station: the network's tracks (and, as their issues land, fusion and MCMCDA).
+"""Base station: the network's results.
 
-``python -m bintrack.services.basestation --tracker NAME``: for a tracker the peer agents run
-(the baselines, arc, sector) it orders the peers' ``LocalEstimate``s by event time
-(watermark = clock tick − ``--lateness``, ties by node id) and publishes each as the
-single-target ``TrackSet`` (track 0) on ``tracks``; the ``tracks`` queryable returns the latest.
+``python -m bintrack.services.basestation --tracker NAME``:
+
+* for a tracker the peer agents run (the baselines, arc, sector) it orders the peers'
+  ``LocalEstimate``s by event time (watermark = clock tick − ``--lateness``, ties by node id)
+  and publishes each as the single-target ``TrackSet`` (track 0) on ``tracks``;
+* for a base-station tracker it runs the tracker itself on the network's transitions (in event
+  time, gaps repaired like a peer agent) and publishes what it gives: ``fusion/reports`` and
+  ``tracks`` (mcmcda), ``laser/objects`` (adaptive-basis), ``motion/velocity`` (velocity-plane,
+  svm, ppr, motion-rw).
+
+The ``tracks`` queryable returns the latest ``TrackSet``.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from operator import attrgetter
 
 import zenoh
 
 from bintrack.argtypes import positive_float
-from bintrack.bus import Service, add_bus_arguments, service_main
-from bintrack.messages import Clock, LocalEstimate, Track, TrackSet, encode
+from bintrack.bus import add_bus_arguments, service_main
+from bintrack.errors import CommandError
+from bintrack.messages import (Clock, LineObjectEstimate, LocalEstimate, Message, PositionReports, Track, TrackSet,
+                               VelocityEstimate, encode)
 from bintrack.ordering import ReorderBuffer
 from bintrack.pipeline import SINGLE_TARGET_TRACK
-from bintrack.trackers import TRACKER_NAMES
+from bintrack.track_command import add_tracker_arguments, tracker_options
+from bintrack.trackers import TRACKER_NAMES, make_tracker, runs_on_peers
+from bintrack.transition_intake import TransitionConsumer
 
 
-class Basestation(Service):
+class Basestation(TransitionConsumer):
     name = "basestation"
 
     async def setup(self) -> None:
         deployment = await self.wait_for_deployment()
         if deployment is None:
             return
+        self.latest: TrackSet | None = None
+        self.serve(self.keys.tracks(), self.on_tracks_query)
+        if not runs_on_peers(self.args.tracker):
+            options = replace(tracker_options(self.args), estimates=None)  # live, the peer agents run it
+            try:
+                tracker = make_tracker(self.args.tracker, deployment, options)
+                if self.args.estimates is not None:
+                    make_tracker(self.args.tracker, deployment, tracker_options(self.args))
+            except ValueError as exc:
+                raise CommandError(str(exc)) from None
+            peers = ("peer_agent",) if self.args.estimates is not None else ()
+            self.start_intake(deployment, tracker, upstream=("sensor_agent", *peers))
+            if self.args.estimates is not None:
+                self.subscribe(self.keys.estimate(), self.on_peer_report)
+            return
         self.sensors = deployment.by_id()
         self.estimates: ReorderBuffer[LocalEstimate] = ReorderBuffer(tiebreak=attrgetter("node"))
-        self.latest: TrackSet | None = None
         self.subscribe(self.keys.estimate(), self.on_estimate)
-        self.subscribe(self.keys.clock(), self.on_clock)
-        self.serve(self.keys.tracks(), self.on_tracks_query)
-        self.follow_end_of_stream(["peer_agent"], lambda t: self.emit(self.estimates.release_all()))
+        self.subscribe(self.keys.clock(), self.on_estimate_clock)
+        self.follow_end_of_stream(["peer_agent"], lambda t: self.relay(self.estimates.release_all()))
 
-    def on_estimate(self, sample: zenoh.Sample) -> None:
+    def valid_estimate(self, sample: zenoh.Sample, tracker: str) -> LocalEstimate | None:
+        """The decoded estimate of ``sample`` if it is of a known node, on its own key and by
+        ``tracker``; else None, reported."""
         estimate = self.decode(LocalEstimate, sample)
         if estimate is None:
-            return
+            return None
         key = str(sample.key_expr)
         if estimate.node not in self.sensors or key != self.keys.estimate(estimate.node):
             self.bad.report(key, f"estimate of unknown or mismatched node {estimate.node!r}")
-            return
-        if estimate.tracker != self.args.tracker:
-            self.bad.report(key, f"estimate of tracker {estimate.tracker!r}, this base station runs {self.args.tracker!r}")
-            return
-        if not self.estimates.push(estimate):
-            self.bad.report(key, f"late: t={estimate.t} is behind the watermark (lateness {self.args.lateness} s)")
+            return None
+        if estimate.tracker != tracker:
+            self.bad.report(key, f"estimate of tracker {estimate.tracker!r}, this base station runs {tracker!r}")
+            return None
+        return estimate
 
-    def on_clock(self, sample: zenoh.Sample) -> None:
+    def on_estimate(self, sample: zenoh.Sample) -> None:
+        estimate = self.valid_estimate(sample, self.args.tracker)
+        if estimate is not None and not self.estimates.push(estimate):
+            self.bad.report(str(sample.key_expr),
+                            f"late: t={estimate.t} is behind the watermark (lateness {self.args.lateness} s)")
+
+    def on_peer_report(self, sample: zenoh.Sample) -> None:
+        """A peer's estimate, to join the fused reports of its scan (mcmcda --estimates)."""
+        estimate = self.valid_estimate(sample, self.args.estimates)
+        if estimate is not None and not self.driver.tracker.add_estimate(estimate):
+            self.bad.report(str(sample.key_expr), f"late: estimate at t={estimate.t} is behind the scans already tracked")
+
+    def on_estimate_clock(self, sample: zenoh.Sample) -> None:
         tick = self.decode(Clock, sample)
         if tick is None:
             return
-        self.emit(self.estimates.release(tick.t - self.args.lateness))
+        self.relay(self.estimates.release(tick.t - self.args.lateness))
         self.report_progress(tick.t)
 
-    def emit(self, estimates: list[LocalEstimate]) -> None:
-        for e in estimates:
-            self.latest = TrackSet(t=e.t, tracker=self.args.tracker,
-                                   tracks=[Track(track=SINGLE_TARGET_TRACK, x=e.x, y=e.y, vx=e.vx, vy=e.vy)])
-            self.publish(self.keys.tracks(), self.latest)
+    def relay(self, estimates: list[LocalEstimate]) -> None:
+        self.emit([TrackSet(t=e.t, tracker=self.args.tracker,
+                            tracks=[Track(track=SINGLE_TARGET_TRACK, x=e.x, y=e.y, vx=e.vx, vy=e.vy)])
+                   for e in estimates])
+
+    def emit(self, outputs: list[Message]) -> None:
+        for out in outputs:
+            if isinstance(out, TrackSet):
+                self.latest = out
+                self.publish(self.keys.tracks(), out)
+            elif isinstance(out, PositionReports):
+                self.publish(self.keys.fusion_reports(), out)
+            elif isinstance(out, LineObjectEstimate):
+                self.publish(self.keys.laser_objects(), out)
+            elif isinstance(out, VelocityEstimate):
+                self.publish(self.keys.motion_velocity(), out)
 
     def on_tracks_query(self, query: zenoh.Query) -> None:
         if self.latest is not None:
@@ -75,6 +124,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--lateness", type=positive_float, default=2.0,
                         help="event-time lateness bound of estimates, s (default: %(default)s; "
                         "at least the peer agents' lateness plus one clock period)")
+    parser.add_argument("--speed", type=positive_float,
+                        help="mcmcda: the fastest target; motion-rw: the initial speed guess; units/s")
+    add_tracker_arguments(parser)
     parser.add_argument("--id", help="instance id (default: host-pid)")
     add_bus_arguments(parser)
     return parser

@@ -17,6 +17,7 @@ from bintrack.bus import client_config, router_config
 from bintrack.formats import (
     TruthRow,
     open_dataset,
+    read_objects,
     read_tracks,
     write_dataset,
 )
@@ -32,6 +33,7 @@ from bintrack.transitions import TransitionDetector
 from conftest import REPO, free_port
 
 DARPA3 = REPO / "datasets" / "darpa-grid-3"
+LASER = REPO / "datasets" / "laser-testbed"
 
 
 def bintrack(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
@@ -39,17 +41,19 @@ def bintrack(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
                           timeout=timeout, cwd=REPO)
 
 
-def live_and_offline(dataset: Path, tracker: str, tmp: Path, speed: str = "0") -> None:
-    """`up --exit-at-end` + `export` vs `track`: the same rows for estimates and for tracks."""
+def live_and_offline(dataset: Path, tracker: str, tmp: Path, speed: str = "0",
+                     exports: tuple[str, ...] = ("estimates", "tracks"), options: tuple[str, ...] = ()) -> None:
+    """`up --exit-at-end` + `export` vs `track` (both with the tracker ``options``): the same
+    rows for each of ``exports``."""
     recording = tmp / f"{tracker}.mcap"
-    up = bintrack("up", str(dataset), "--speed", speed, "--tracker", tracker, "--record", str(recording),
+    up = bintrack("up", str(dataset), "--speed", speed, "--tracker", tracker, *options, "--record", str(recording),
                   "--exit-at-end", "--listen", f"tcp/127.0.0.1:{free_port()}")
     assert up.returncode == 0, up.stderr[-3000:]
     offline = tmp / f"{tracker}-offline.csv"
-    assert bintrack("track", str(dataset), "--tracker", tracker, "--out", str(offline)).returncode == 0
+    assert bintrack("track", str(dataset), "--tracker", tracker, *options, "--out", str(offline)).returncode == 0
     expected = read_tracks(offline)
     assert len(expected) > 20
-    for what in ("estimates", "tracks"):
+    for what in exports:
         exported = tmp / f"{tracker}-{what}.csv"
         result = bintrack("export", str(recording), "--what", what, "--out", str(exported))
         assert result.returncode == 0, result.stderr
@@ -64,14 +68,62 @@ def uniform_dataset(tmp_path_factory) -> Path:
     return folder
 
 
-@pytest.mark.parametrize("tracker", (*BASELINES, "arc"))
+@pytest.mark.parametrize("tracker", (*BASELINES, "arc", "sector"))
 def test_live_equals_offline_on_a_uniform_dataset(uniform_dataset, tracker, tmp_path):
     live_and_offline(uniform_dataset, tracker, tmp_path)
 
 
-@pytest.mark.parametrize("tracker", (*BASELINES, "arc"))
+@pytest.fixture(scope="module")
+def sector_dataset(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("sector") / "s4"
+    assert cli.main(["simulate", "sector-300", "--sectors", "4", "--range", "70", "--trajectory", "random",
+                     "--seed", "5", "--out", str(folder)]) == 0
+    return folder
+
+
+@pytest.mark.parametrize("tracker", ("sector", "arc"))
+def test_live_equals_offline_on_a_sector_dataset(sector_dataset, tracker, tmp_path):
+    live_and_offline(sector_dataset, tracker, tmp_path)
+
+
+@pytest.mark.parametrize("tracker", (*BASELINES, "arc", "sector"))
 def test_live_equals_offline_on_darpa_grid_3(tracker, tmp_path):
     live_and_offline(DARPA3, tracker, tmp_path)
+
+
+def test_live_equals_offline_for_mcmcda_on_darpa_grid_3(tmp_path):
+    live_and_offline(DARPA3, "mcmcda", tmp_path, exports=("tracks",))
+
+
+def test_live_equals_offline_for_mcmcda_fed_by_arc_estimates(uniform_dataset, tmp_path):
+    live_and_offline(uniform_dataset, "mcmcda", tmp_path, exports=("tracks",),
+                     options=("--estimates", "arc", "--seed", "3"))
+
+
+@pytest.fixture(scope="module")
+def motion_dataset(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("motion") / "m"
+    assert cli.main(["simulate", "motion", "--nodes", "60", "--duration", "40", "--trajectory", "random-walk",
+                     "--seed", "4", "--out", str(folder)]) == 0
+    return folder
+
+
+@pytest.mark.parametrize("tracker", ("velocity-plane", "svm", "ppr", "motion-rw"))
+def test_live_equals_offline_for_closer_farther_sensors(motion_dataset, tracker, tmp_path):
+    live_and_offline(motion_dataset, tracker, tmp_path, exports=("velocity",), options=("--window", "8"))
+
+
+def test_live_equals_offline_for_the_adaptive_basis_on_the_laser_testbed(tmp_path):
+    recording = tmp_path / "laser.mcap"
+    up = bintrack("up", str(LASER), "--speed", "0", "--tracker", "adaptive-basis", "--record", str(recording),
+                  "--exit-at-end", "--listen", f"tcp/127.0.0.1:{free_port()}")
+    assert up.returncode == 0, up.stderr[-3000:]
+    offline, exported = tmp_path / "offline.csv", tmp_path / "live.csv"
+    assert bintrack("track", str(LASER), "--tracker", "adaptive-basis", "--out", str(offline)).returncode == 0
+    assert bintrack("export", str(recording), "--what", "objects", "--out", str(exported)).returncode == 0
+    expected = read_objects(offline)
+    assert len(expected) == 32
+    assert read_objects(exported) == expected
 
 
 @pytest.mark.slow

@@ -65,12 +65,21 @@ def test_track_to_stdout(foreign_dataset, capsys):
     assert out[0] == "t,track,x,y,vx,vy" and len(out) > 10
 
 
-@pytest.mark.parametrize("option", [["--speed", "-1"], ["--speed", "nan"], ["--window", "1"], ["--tracker", "nope"]])
+@pytest.mark.parametrize("option", [["--speed", "-1"], ["--speed", "nan"], ["--window", "0"], ["--tracker", "nope"],
+                                    ["--n-mc", "0"], ["--estimates", "mcmcda"]])
 def test_bad_options_exit_2(foreign_dataset, option, capsys):
     args = ["track", str(foreign_dataset), "--tracker", "equal-weight", *option]
     with pytest.raises(SystemExit) as info:
         cli.main(args)
     assert info.value.code == 2
+
+
+@pytest.mark.parametrize("options", [("--tracker", "line-fit", "--window", "1"),
+                                     ("--tracker", "arc", "--estimates", "arc")])
+def test_options_a_tracker_cannot_take_exit_2(foreign_dataset, options, capsys):
+    assert cli.main(["track", str(foreign_dataset), *options]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "error" in err
 
 
 def test_tracker_needs_range_sensors(tmp_path, capsys):

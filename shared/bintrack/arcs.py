@@ -79,7 +79,7 @@ def _arcs(intervals: list[tuple[float, float]]) -> tuple[Arc, ...]:
         return ()
     if len(intervals) == 1 and intervals[0][0] <= TOL and intervals[0][1] >= TWO_PI - TOL:
         return (Arc(0.0, TWO_PI),)
-    arcs = [Arc(normalize_angle(lo), hi - lo) for lo, hi in intervals]
+    arcs = [Arc(lo if 0.0 <= lo < TWO_PI else normalize_angle(lo), hi - lo) for lo, hi in intervals]
     if len(intervals) > 1 and intervals[0][0] <= TOL and intervals[-1][1] >= TWO_PI - TOL:
         last = arcs[-1]
         arcs = arcs[1:-1] + [Arc(last.start, TWO_PI - intervals[-1][0] + intervals[0][1])]
@@ -114,6 +114,18 @@ class ArcSet:
     def centred(cls, centre: float, half_width: float) -> ArcSet:
         """The arc ``centre ± half_width`` (rad); the full circle for half_width ≥ π."""
         return cls([Arc(normalize_angle(centre - half_width), 2.0 * half_width)])
+
+    @classmethod
+    def of_intervals(cls, intervals: Iterable[tuple[float, float]]) -> ArcSet:
+        """The union of the angle intervals [lo, hi] (rad, 0 ≤ lo < 2π, lo ≤ hi ≤ lo + 2π),
+        without per-arc normalisation: for many pieces cut from one circle."""
+        linear = []
+        for lo, hi in intervals:
+            if hi <= TWO_PI:
+                linear.append((lo, hi))
+            else:
+                linear += [(lo, TWO_PI), (0.0, min(hi - TWO_PI, lo))]
+        return cls._of(linear)
 
     @classmethod
     def _of(cls, intervals: list[tuple[float, float]]) -> ArcSet:
@@ -230,6 +242,31 @@ def depth_extreme(sets: list[ArcSet], within: ArcSet, deepest: bool) -> ArcSet:
     target = count[inside].max() if deepest else count[inside].min()
     chosen = inside & (count == target)
     return ArcSet._of([(float(a), float(b)) for a, b in zip(lo[chosen], hi[chosen])])
+
+
+def union(sets: Iterable[ArcSet]) -> ArcSet:
+    """The union of arc sets (rad), in one merge."""
+    return ArcSet._of([interval for s in sets for interval in _linear(s.arcs)])
+
+
+def combine(base: ArcSet, ins: list[ArcSet], outs: list[ArcSet]) -> ArcSet:
+    """The final arc FA of eq. 1 (paper 001 §3.2.2; paper 000 §III.B.3, eq. 1):
+    ``base & ins[0] & ins[1] … − (outs[0] | outs[1] | …)``, angles in rad.
+
+    ``base`` is FA's initial value: the whole circle for a disk (paper 001) or the crossed
+    sector's arc 2π/s (paper 000). With inconsistent reports (paper 001 §5.6) the result of "&"
+    can be empty: then it is the part of ``base`` inside the most ``ins``; and if "−" empties
+    it, the part of the "&" result inside the fewest ``outs`` (:func:`depth_extreme`).
+    """
+    fa = base
+    for arc in ins:
+        fa = fa & arc
+    if fa.is_empty:
+        fa = depth_extreme(ins, base, deepest=True)
+    remaining = fa - union(outs)
+    if remaining.is_empty:
+        remaining = depth_extreme(outs, fa, deepest=False)
+    return remaining
 
 
 def overlap_matrix(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:

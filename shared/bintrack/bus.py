@@ -34,6 +34,7 @@ from typing import Any
 
 import zenoh
 
+from .errors import CommandError
 from .keys import Keys, parse_key
 from .messages import Clock, EndOfStream, Message, MessageError, decode, encode
 
@@ -385,7 +386,11 @@ class Service:
             log.error("%s", exc)
             return 1
         try:
-            await self.setup()
+            try:
+                await self.setup()
+            except CommandError as exc:  # the deployment does not suit this service's options
+                log.error("%s: %s", self.name, exc)
+                return 2
             if not self.stopping.is_set():
                 self._token = self.session.liveliness().declare_token(self.keys.alive(self.name, self.instance))
                 log.info("%s %s: ready on %s", self.name, self.instance, self.keys.prefix)

@@ -22,8 +22,8 @@ from .recording import open_recording
 from .trackers import TRACKER_NAMES
 
 SHIPPED_DATASET = Path(__file__).resolve().parents[2] / "datasets" / "darpa-grid-3"
-# The best tracker available for this dataset; paper 001 §5.3.2 finds equal weight the best baseline.
-DEMO_TRACKER = "equal-weight"
+# Several people at once: fusion and online MCMCDA at the base station (paper 004).
+DEMO_TRACKER = "mcmcda"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

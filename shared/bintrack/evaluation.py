@@ -166,7 +166,10 @@ def evaluate(dataset: Dataset | Path | str, result_path: Path | str, *, gospa_c:
     R = metrics.sensing_range(dataset.deployment)
     if len(truth) == 1 and len({r.track for r in rows}) <= 1:
         figures, series = _single_figures(rows, next(iter(truth.values())), R, units)
-        main = ("location_error_over_R_mean",) if R is not None else ("location_error_mean",)
+        if all(r.x is None for r in rows):
+            main = ("heading_error_mean", "speed_error_mean")
+        else:
+            main = ("location_error_over_R_mean",) if R is not None else ("location_error_mean",)
         return Evaluation(mode="single", figures=figures, main=main, tracks=tuple(rows), objects=(), series=series,
                           **common)
     figures, series = _multi_figures(rows, truth, R, units, gospa_c)
@@ -194,16 +197,31 @@ def _location_figures(rows, truth, R, units, to: str) -> tuple[list[Figure], Ser
     return figures, Series(f"location error ({units})", times[scored], errors[scored])
 
 def _single_figures(rows, path: metrics.TruthPath, R, units) -> tuple[tuple[Figure, ...], tuple[Series, ...]]:
-    figures, series = _location_figures(rows, {path.target: path}, R, units, "the target")
-    figures.append(Figure("trajectory_error", "trajectory error (area / length)", metrics.trajectory_error(rows, path),
-                          units))
+    """Location figures over the rows with a position, trajectory error, and velocity, heading
+    and speed errors over the rows with a velocity (velocity-only estimators have no position)."""
+    placed = [r for r in rows if r.x is not None]
+    figures, series = _location_figures(placed, {path.target: path}, R, units, "the target")
+    figures[0] = Figure("rows", "rows in the result", len(rows))
+    figures.append(Figure("trajectory_error", "trajectory error (area / length)",
+                          metrics.trajectory_error(placed, path) if len(placed) >= 2 else None, units))
     if any(r.vx is not None and r.vy is not None for r in rows):
         stats = metrics.ErrorStats.of(metrics.velocity_errors(rows, path))
+        heading, speed = metrics.heading_speed_errors(rows, path)
+        heading_stats, speed_stats = metrics.ErrorStats.of(np.degrees(heading)), metrics.ErrorStats.of(100 * speed)
         figures += [
             Figure("velocity_rows", "rows with a velocity, scored", stats.n),
             Figure("velocity_error_mean", "velocity error, mean", stats.mean, f"{units}/s"),
             Figure("velocity_error_max", "velocity error, max", stats.max, f"{units}/s"),
+            Figure("heading_error_mean", "heading error, mean", heading_stats.mean, "deg"),
+            Figure("heading_error_median", "heading error, median", heading_stats.median, "deg"),
+            Figure("speed_error_mean", "speed error, mean", speed_stats.mean, "%"),
+            Figure("speed_error_median", "speed error, median", speed_stats.median, "%"),
         ]
+        if not placed:  # a velocity-only estimator: plot its heading error instead
+            timed = [r for r in rows if r.vx is not None and path.exists(r.t)]
+            heading_all, _ = metrics.heading_speed_errors(timed, path)
+            if len(heading_all) == len(timed):
+                series = Series("heading error (deg)", np.array([r.t for r in timed]), np.degrees(heading_all))
     return tuple(figures), (series,)
 
 def _multi_figures(rows, truth, R, units, c: float) -> tuple[tuple[Figure, ...], tuple[Series, ...]]:

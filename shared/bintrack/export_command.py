@@ -19,8 +19,7 @@ import math
 import sys
 
 from .formats import ObjectRow, TrackRow, write_objects, write_tracks
-from .messages import LineObjectEstimate, VelocityEstimate
-from .pipeline import SINGLE_TARGET_TRACK, output_rows
+from .pipeline import output_objects, output_rows
 from .recording import Recording, open_recording
 
 WHAT = {"tracks": "tracks", "estimates": "estimate", "velocity": "motion_velocity", "objects": "laser_objects"}
@@ -34,21 +33,12 @@ def track_rows(recording: Recording, what: str) -> list[TrackRow]:
     """tracks.csv rows of the ``tracks``, ``estimates`` or ``velocity`` messages of ``recording``,
     sorted by (t, track, x, y); FormatError for a payload that does not decode."""
     messages = (message for _, message in recording.messages({WHAT[what]}))
-    if what == "velocity":
-        rows = [TrackRow(m.t, SINGLE_TARGET_TRACK, m.x, m.y, m.vx, m.vy) for m in messages
-                if isinstance(m, VelocityEstimate)]
-    else:
-        rows = list(output_rows(messages))
-    return sorted(rows, key=_order)
+    return sorted(output_rows(messages), key=_order)
 
 
 def object_rows(recording: Recording) -> list[ObjectRow]:
     """objects.csv rows of ``recording``: the last ``LineObjectEstimate`` of each object, by object."""
-    latest: dict[int, LineObjectEstimate] = {}
-    for _, message in recording.messages({WHAT["objects"]}):
-        latest[message.object] = message
-    return [ObjectRow(m.object, m.t_first, m.t_last, m.entry_x, m.entry_y, m.exit_x, m.exit_y, m.vx, m.vy)
-            for _, m in sorted(latest.items())]
+    return output_objects(message for _, message in recording.messages({WHAT["objects"]}))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

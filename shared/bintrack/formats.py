@@ -65,12 +65,13 @@ class TruthRow(NamedTuple):
 
 
 class TrackRow(NamedTuple):
-    """One row of tracks.csv: track position (units) and velocity (units/s, may be None)."""
+    """One row of tracks.csv: track position (units) and velocity (units/s). Either may be None
+    (empty in the file), not both: velocity-only estimators (paper 002) give no position."""
 
     t: float
     track: int
-    x: float
-    y: float
+    x: float | None
+    y: float | None
     vx: float | None = None
     vy: float | None = None
 
@@ -447,16 +448,20 @@ def read_tracks(path: Path | str) -> list[TrackRow]:
     path = Path(path)
     rows = []
     for line, row in _rows(path, TRACKS_HEADER, required=("t", "track", "x", "y")):
-        rows.append(
-            TrackRow(
-                _parse_float(row["t"], path, line, "t"),
-                _parse_int(row["track"], path, line, "track"),
-                _parse_float(row["x"], path, line, "x"),
-                _parse_float(row["y"], path, line, "y"),
-                _parse_optional_float(row.get("vx", ""), path, line, "vx"),
-                _parse_optional_float(row.get("vy", ""), path, line, "vy"),
-            )
+        parsed = TrackRow(
+            _parse_float(row["t"], path, line, "t"),
+            _parse_int(row["track"], path, line, "track"),
+            _parse_optional_float(row.get("x", ""), path, line, "x"),
+            _parse_optional_float(row.get("y", ""), path, line, "y"),
+            _parse_optional_float(row.get("vx", ""), path, line, "vx"),
+            _parse_optional_float(row.get("vy", ""), path, line, "vy"),
         )
+        for a, b in (("x", "y"), ("vx", "vy")):
+            if (getattr(parsed, a) is None) != (getattr(parsed, b) is None):
+                raise FormatError(path, line, b if getattr(parsed, b) is None else a, f"empty while {a if getattr(parsed, b) is None else b} is given")
+        if parsed.x is None and parsed.vx is None:
+            raise FormatError(path, line, "x", "a row needs a position (x, y), a velocity (vx, vy) or both")
+        rows.append(parsed)
     return rows
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from scipy.sparse import csr_matrix
@@ -37,8 +38,9 @@ _MIN_VARIANCE_CELLS = 1.0 / 12.0
 class FusionConfig:
     """Parameters of the grid fusion (paper 004 §III)."""
 
-    cell: float = 1.0
-    """side of a grid cell, deployment units"""
+    cell: float | None = None
+    """side of a grid cell, deployment units; default: an eighth of the smallest sensing range
+    (1 m for the 8 m PIR sensors of paper 004)"""
     threshold: int = 3
     """n_d: detections a cell needs before its detection-likelihood is computed"""
     scan: float | None = None
@@ -47,11 +49,11 @@ class FusionConfig:
     """compute a cell only when the sensor it is assigned to detects (§III distributed form)"""
     full: bool = True
     """weight cells by eq. (4) in full (up to a common factor) rather than its detection part"""
-    suppress: float = 1.5
-    """cells within this multiple of the sensing radius of a cluster's seed, and whose
-    log-likelihood is more than ``dominance`` below the seed's, seed no later cluster"""
-    dominance: float = 8.0
-    """see ``suppress``: a log-likelihood difference"""
+    clustering: Literal["paper", "explain"] = "explain"
+    """how cells become reports (see ``GridFusion.reports``)"""
+    explained: float = 1.0
+    """"explain": a report explains the detections of sensors within this multiple of their
+    sensing range of it"""
 
 
 class GridFusion:
@@ -65,7 +67,7 @@ class GridFusion:
         sensors = [s for s in deployment.sensors if isinstance(s, (DiskSensor, SectorSensor))]
         if not sensors:
             raise CommandError("fusion needs disk or sector sensors; this deployment has none")
-        if not config.cell > 0:
+        if config.cell is not None and not config.cell > 0:
             raise CommandError(f"fusion cell size must be positive, got {config.cell}")
         if config.threshold < 1:
             raise CommandError(f"fusion threshold n_d must be at least 1, got {config.threshold}")
@@ -81,10 +83,14 @@ class GridFusion:
             self._log_miss = np.log1p(-pd)
             # eq. (4) over all sensors = ∏_{i∉S(c)} q_i^y(1−q_i)^(1−y) · ∏_{i∈S(c)} p_i^y(1−p_i)^(1−y),
             # i.e. a constant (no target anywhere) times ∏_{i∈S(c)} (p_i/q_i)^y ((1−p_i)/(1−q_i))^(1−y)
-            self._log_hit_ratio = np.log(pd) - np.log(pfa)
-            self._log_miss_ratio = np.log1p(-pd) - np.log1p(-pfa)
+            # (clamped, so that ideal sensors, pd = 1 and pfa = 0, give large finite ratios)
+            pd_c, pfa_c = np.clip(pd, 1e-9, 1 - 1e-9), np.clip(pfa, 1e-9, 1 - 1e-9)
+            self._log_hit_ratio = np.log(pd_c) - np.log(pfa_c)
+            self._log_miss_ratio = np.log1p(-pd_c) - np.log1p(-pfa_c)
         region = deployment.region
-        h = config.cell
+        h = config.cell if config.cell is not None else float(min(s.range for s in sensors)) / 8.0
+        self.cell = h
+        """side of a grid cell, deployment units"""
         xs = np.arange(region.xmin + h / 2, region.xmax, h)
         ys = np.arange(region.ymin + h / 2, region.ymax, h)
         grid = np.array(np.meshgrid(xs, ys, indexing="xy")).reshape(2, -1).T
@@ -115,18 +121,24 @@ class GridFusion:
         self._cover = csr_matrix((data, (renumber[np.array(rows, dtype=int)], np.array(cols, dtype=int))),
                                  shape=(keep.size, len(sensors)))
         self._radius = ranges
+        self._positions = positions
+        self._sensor_tree = tree
         self._cell_tree = cKDTree(self.cells)
 
-    def detection_likelihood(self, detecting: np.ndarray, full: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    def detection_likelihood(self, detecting: np.ndarray, full: bool = False,
+                             active: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Cells whose likelihood is computed for the 0/1 vector ``detecting`` (one entry per
         sensor, in ``ids`` order), and their log-likelihoods.
 
         A cell counts when at least n_d covering sensors detect and its owner detects (the owner
         computes it, §III distributed form). The value is the detection part of eq. (4); with
         ``full``, eq. (4) itself up to a factor common to all cells (the covering sensors'
-        likelihood ratios against a false detection), which is just as local.
+        likelihood ratios against a false detection), which is just as local. Sensors outside
+        ``active`` (default: all) take no part: neither their detections nor their misses count.
         """
         y = detecting.astype(float)
+        if active is not None:
+            y = y * active
         counts = self._cover @ y
         computed = counts >= self.config.threshold
         if self.config.owner_detects:
@@ -138,7 +150,10 @@ class GridFusion:
             per_sensor = np.where(y > 0, self._log_hit_ratio, self._log_miss_ratio)
         else:
             per_sensor = np.where(y > 0, self._log_hit, self._log_miss)
-        return cells, self._cover[cells] @ np.where(np.isfinite(per_sensor), per_sensor, -1e300)
+        per_sensor = np.where(np.isfinite(per_sensor), per_sensor, -1e300)
+        if active is not None:
+            per_sensor = per_sensor * active
+        return cells, self._cover[cells] @ per_sensor
 
     def likelihood_map(self, detecting: np.ndarray, full: bool = False) -> np.ndarray:
         """Likelihood of every cell (0 where it is not computed), scaled to a maximum of 1, for plots."""
@@ -149,10 +164,35 @@ class GridFusion:
         return out
 
     def reports(self, detecting: np.ndarray) -> list[PositionReport]:
-        """Position reports of one scan: one per cluster of computed cells (§III clustering),
-        ordered by the seed's likelihood; covariance = likelihood-weighted spread of the
-        cluster's cells plus the cell quantization (h²/12), in units²."""
-        cells, log_l = self.detection_likelihood(detecting, self.config.full)
+        """Position reports of one scan, strongest first; covariance = likelihood-weighted spread
+        of the cluster's cells plus the cell quantization (h²/12), in units².
+
+        ``clustering="paper"`` (§III): seeds in order of likelihood, each gathering the remaining
+        computed cells within its sensing radius. ``"explain"``: after each cluster, the
+        detections of the sensors covering its centre are explained by it and the likelihood is
+        computed again without them, so that one target's detections make one report rather
+        than a report and satellites around it.
+        """
+        if self.config.clustering == "paper":
+            cells, log_l = self.detection_likelihood(detecting, self.config.full)
+            return self._clusters(cells, log_l, limit=None)
+        active = np.ones(len(self.ids))
+        reports: list[PositionReport] = []
+        while True:
+            cells, log_l = self.detection_likelihood(detecting, self.config.full, active)
+            found = self._clusters(cells, log_l, limit=1)
+            if not found:
+                return reports
+            report = found[0]
+            reports.append(report)
+            covering = self._sensor_tree.query_ball_point((report.x, report.y), r=float(self._radius.max()))
+            explained = [i for i in covering if active[i] and detecting[i] and math.hypot(
+                self._positions[i, 0] - report.x, self._positions[i, 1] - report.y) <= self.config.explained * self._radius[i]]
+            if not explained:  # nothing left for it to explain: it cannot change the next pass
+                return reports
+            active[explained] = 0.0
+
+    def _clusters(self, cells: np.ndarray, log_l: np.ndarray, limit: int | None) -> list[PositionReport]:
         if cells.size == 0:
             return []
         likelihood = np.exp(log_l - log_l.max())
@@ -161,30 +201,24 @@ class GridFusion:
         free[cells] = True
         weight = np.zeros(len(self.cells))
         weight[cells] = likelihood
-        log_weight = np.full(len(self.cells), -np.inf)
-        log_weight[cells] = log_l
         reports = []
         for seed in cells[order]:
             if not free[seed]:
                 continue
-            radius = float(self._radius[self.owner[seed]])
-            members = np.asarray(self._cell_tree.query_ball_point(self.cells[seed], r=radius))
+            members = np.asarray(self._cell_tree.query_ball_point(self.cells[seed], r=float(self._radius[self.owner[seed]])))
             members = members[free[members]]
-            shadow = np.asarray(self._cell_tree.query_ball_point(self.cells[seed], r=self.config.suppress * radius))
             free[members] = False
-            free[shadow[log_weight[shadow] < log_weight[seed] - self.config.dominance]] = False
             w = weight[members]
             w_sum = float(w.sum())
-            if w_sum <= 0:
-                w = np.ones_like(w)
-                w_sum = float(w.size)
             centre = (w[:, None] * self.cells[members]).sum(axis=0) / w_sum
             spread = self.cells[members] - centre
             cov = (w[:, None, None] * np.einsum("ni,nj->nij", spread, spread)).sum(axis=0) / w_sum
-            cov += np.eye(2) * _MIN_VARIANCE_CELLS * self.config.cell ** 2
+            cov += np.eye(2) * _MIN_VARIANCE_CELLS * self.cell ** 2
             reports.append(PositionReport(x=float(centre[0]), y=float(centre[1]),
                                           cov=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
                                           weight=w_sum))
+            if limit is not None and len(reports) >= limit:
+                break
         return reports
 
 
@@ -223,7 +257,7 @@ class ScanFusion:
         if i is not None:
             self._detecting[i] = transition.value >= 0 if self._sector[i] else transition.value == 1
         if self._next is None:
-            self._next = math.ceil(transition.t / self.period - 1e-9)
+            self._next = self.scan_of(transition.t)
         self._last_t = transition.t
         return out
 
@@ -232,12 +266,20 @@ class ScanFusion:
         if self._next is None:
             return []
         if math.isinf(t):
-            t = math.ceil(self._last_t / self.period - 1e-9) * self.period
+            t = self.scan_of(self._last_t) * self.period
         out = []
         while (scan_t := round(self._next * self.period, 9)) <= t:
             out.append(PositionReports(t=scan_t, reports=self.grid.reports(self._detecting)))
             self._next += 1
         return out
+
+    def scan_of(self, t: float) -> int:
+        """Index of the first scan at or after event time ``t`` (s)."""
+        return math.ceil(round(t / self.period, 9))
+
+    def next_scan(self) -> int:
+        """Index of the next scan to be emitted (scans before it are final)."""
+        return -math.inf if self._next is None else self._next
 
     def detecting(self) -> np.ndarray:
         """The current 0/1 status of every sensor (``grid.ids`` order)."""

@@ -53,16 +53,16 @@ class MCMCDAConfig:
     """Metropolis–Hastings iterations per scan"""
     seed: int = 0
     """seed of the sampler's random stream"""
-    process_noise: float = 0.5
+    process_noise: float = 0.1
     """q: white-acceleration spectral density of the constant-velocity model, units²/s³"""
     extra_variance: float = 4.0
     """added to each report's variance per axis, units² (a cluster's spread understates the
     error of its centre)"""
     initial_speed: float = 1.5
     """standard deviation of a new track's velocity per axis, units/s"""
-    pd: float = 0.8
+    pd: float = 0.85
     """probability that a present target yields a report in a scan"""
-    false_alarm_rate: float = 1e-3
+    false_alarm_rate: float = 3e-4
     """λ_f: false reports per unit area per scan"""
     birth_rate: float = 1e-5
     """λ_b: new targets per unit area per scan"""
@@ -70,15 +70,15 @@ class MCMCDAConfig:
     """p_z: probability that a target disappears between scans"""
     max_speed: float = 3.0
     """v̄: fastest target, units/s (gates which reports may follow each other in a track)"""
-    gate_margin: float = 4.0
-    """added to v̄·Δt in that gate, units (report noise)"""
+    gate_sigmas: float = 3.0
+    """added to v̄·Δt in that gate: this many standard deviations of the two positions' noise"""
     max_misses: int = 3
     """d̄: consecutive scans a track may go unreported"""
     stop: float = 0.3
     """γ: probability that an extension proposal stops after each added report"""
     min_reports: int = 3
     """reports a track needs (fixed and in the window) before it is published"""
-    coast: int = 1
+    coast: int = 2
     """scans a published track is predicted past its last report before it is dropped"""
 
 
@@ -266,22 +266,22 @@ class OnlineMCMCDA:
 
     # ------------------------------------------------------------------ gate
 
-    def _follows(self, a_scan: int, a_t: float, ax: float, ay: float, rid: int) -> bool:
+    def _follows(self, a_scan: int, a_t: float, ax: float, ay: float, a_var: float, rid: int) -> bool:
         rep = self._reports[rid]
         gap = rep.scan - a_scan
         if gap < 1 or gap > self.config.max_misses + 1:
             return False
-        reach = self.config.max_speed * (rep.t - a_t) + self.config.gate_margin
+        reach = self.config.max_speed * (rep.t - a_t) + self.config.gate_sigmas * math.sqrt(a_var + max(rep.rx, rep.ry))
         return (rep.x - ax) ** 2 + (rep.y - ay) ** 2 <= reach * reach
 
-    def _end_of(self, track: _Track) -> tuple[int, float, float, float] | None:
-        """(scan, t, x, y) of the track's last report or anchor."""
+    def _end_of(self, track: _Track) -> tuple[int, float, float, float, float] | None:
+        """(scan, t, x, y, position variance) of the track's last report or anchor."""
         if track.reports:
             rep = self._reports[track.reports[-1]]
-            return rep.scan, rep.t, rep.x, rep.y
+            return rep.scan, rep.t, rep.x, rep.y, max(rep.rx, rep.ry)
         if track.anchor is not None:
             a = track.anchor
-            return a.scan, a.t, a.x[0], a.y[0]
+            return a.scan, a.t, a.x[0], a.y[0], max(a.x[2], a.y[2])
         return None
 
     def _valid(self, track: _Track) -> bool:
@@ -289,15 +289,15 @@ class OnlineMCMCDA:
             return False
         if track.anchor is not None:
             a = track.anchor
-            prev = (a.scan, a.t, a.x[0], a.y[0])
+            prev = (a.scan, a.t, a.x[0], a.y[0], max(a.x[2], a.y[2]))
         else:
             r = self._reports[track.reports[0]]
-            prev = (r.scan, r.t, r.x, r.y)
+            prev = (r.scan, r.t, r.x, r.y, max(r.rx, r.ry))
         for rid in track.reports[0 if track.anchor is not None else 1:]:
             if not self._follows(*prev, rid):
                 return False
             r = self._reports[rid]
-            prev = (r.scan, r.t, r.x, r.y)
+            prev = (r.scan, r.t, r.x, r.y, max(r.rx, r.ry))
         return True
 
     def _candidates(self, end: tuple[int, float, float, float], scan: int, free: set[int]) -> list[int]:
@@ -327,7 +327,7 @@ class OnlineMCMCDA:
             added.append(rid)
             taken.add(rid)
             rep = self._reports[rid]
-            end = (rep.scan, rep.t, rep.x, rep.y)
+            end = (rep.scan, rep.t, rep.x, rep.y, max(rep.rx, rep.ry))
 
     def _path_logq(self, end, path: list[int], free: set[int], must: bool) -> float:
         """log q of ``_extend`` proposing exactly ``path`` from ``end`` (then stopping)."""
@@ -342,7 +342,7 @@ class OnlineMCMCDA:
             logq += -math.log(span) - math.log(len(cands)) + (math.log1p(-c.stop) if (i or not must) else 0.0)
             taken.add(rid)
             rep = self._reports[rid]
-            end = (rep.scan, rep.t, rep.x, rep.y)
+            end = (rep.scan, rep.t, rep.x, rep.y, max(rep.rx, rep.ry))
         span = min(c.max_misses + 1, self._scan - end[0])
         return logq + (math.log(c.stop) if span >= 1 else 0.0)
 
@@ -392,7 +392,7 @@ class OnlineMCMCDA:
         starts.sort()
         first = self._rng.choice(starts)
         rep = self._reports[first]
-        rest, logq = self._extend((rep.scan, rep.t, rep.x, rep.y), free - {first}, must=True)
+        rest, logq = self._extend((rep.scan, rep.t, rep.x, rep.y, max(rep.rx, rep.ry)), free - {first}, must=True)
         if not rest:
             return None
         new = _Track((first, *rest))
@@ -408,7 +408,7 @@ class OnlineMCMCDA:
         freed = free | set(t.reports)
         starts = sum(1 for r in freed if self._reports[r].scan < self._scan)
         rep = self._reports[t.reports[0]]
-        reverse = -math.log(starts) + self._path_logq((rep.scan, rep.t, rep.x, rep.y), list(t.reports[1:]), freed - {t.reports[0]}, True)
+        reverse = -math.log(starts) + self._path_logq((rep.scan, rep.t, rep.x, rep.y, max(rep.rx, rep.ry)), list(t.reports[1:]), freed - {t.reports[0]}, True)
         return [i], [], self._ratio_k(len(tracks), len(tracks) - 1, -math.log(len(mortal)), reverse)
 
     def _splittable(self, tracks):

@@ -187,6 +187,23 @@ def velocity_errors(rows: Sequence[TrackRow], path: TruthPath) -> np.ndarray:
     return np.hypot(*(v_est - v_true).T)
 
 
+def heading_speed_errors(rows: Sequence[TrackRow], path: TruthPath) -> tuple[np.ndarray, np.ndarray]:
+    """For each row with a velocity within the target's life: the heading error |∠v_est − ∠v_true|
+    (rad, in [0, π]) and the relative speed error | |v_est| − |v_true| | / |v_true| (paper 002's
+    direction and speed errors); rows where the target stands still are skipped."""
+    rows = [r for r in rows if r.vx is not None and r.vy is not None and path.exists(r.t)]
+    if not rows:
+        return np.zeros(0), np.zeros(0)
+    v_est = np.array([(r.vx, r.vy) for r in rows], dtype=float)
+    v_true = path.velocity(np.array([r.t for r in rows], dtype=float))
+    speed_true = np.hypot(*v_true.T)
+    moving = speed_true > 0
+    v_est, v_true, speed_true = v_est[moving], v_true[moving], speed_true[moving]
+    turn = np.arctan2(v_est[:, 1], v_est[:, 0]) - np.arctan2(v_true[:, 1], v_true[:, 0])
+    heading = np.abs((turn + np.pi) % (2 * np.pi) - np.pi)
+    return heading, np.abs(np.hypot(*v_est.T) - speed_true) / speed_true
+
+
 def area_between(a: np.ndarray, b: np.ndarray) -> float:
     """Area (units²) enclosed between two polylines ``a`` and ``b`` run in the same direction:
     the ring a + reversed(b), closed, noded at its self-intersections; every region it encloses

@@ -6,8 +6,8 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Iterator
 
-from .formats import Dataset, TrackRow
-from .messages import LocalEstimate, Transition, TrackSet
+from .formats import Dataset, ObjectRow, TrackRow
+from .messages import LineObjectEstimate, LocalEstimate, Message, Transition, TrackSet, VelocityEstimate
 from .ordering import ReorderBuffer
 from .trackers import Tracker
 from .transitions import TransitionDetector
@@ -31,22 +31,22 @@ class TrackerDriver:
         """Hold ``transition``; False if it is later than what was already released (late)."""
         return self.buffer.push(transition)
 
-    def advance(self, watermark: float) -> list[LocalEstimate | TrackSet]:
-        out: list[LocalEstimate | TrackSet] = []
+    def advance(self, watermark: float) -> list[Message]:
+        out: list[Message] = []
         for transition in self.buffer.release(watermark):
             out.extend(self.tracker.update(transition))
         out.extend(self.tracker.flush(math.nextafter(watermark, -math.inf)))
         return out
 
-    def finish(self) -> list[LocalEstimate | TrackSet]:
-        out: list[LocalEstimate | TrackSet] = []
+    def finish(self) -> list[Message]:
+        out: list[Message] = []
         for transition in self.buffer.release_all():
             out.extend(self.tracker.update(transition))
         out.extend(self.tracker.flush(math.inf))
         return out
 
 
-def run_tracker(dataset: Dataset, tracker: Tracker, on_event: Callable[[int], None] | None = None) -> Iterator[LocalEstimate | TrackSet]:
+def run_tracker(dataset: Dataset, tracker: Tracker, on_event: Callable[[int], None] | None = None) -> Iterator[Message]:
     """Feed every event of ``dataset`` to ``tracker`` and yield its outputs, then flush it.
 
     ``on_event(count)`` is called after each event (for progress display).
@@ -63,11 +63,24 @@ def run_tracker(dataset: Dataset, tracker: Tracker, on_event: Callable[[int], No
     yield from driver.finish()
 
 
-def output_rows(outputs: Iterable[LocalEstimate | TrackSet]) -> Iterator[TrackRow]:
-    """tracks.csv rows of tracker outputs: a single-target estimate is track 0."""
+def output_rows(outputs: Iterable[Message]) -> Iterator[TrackRow]:
+    """tracks.csv rows of tracker outputs: every track of a ``TrackSet``; a single-target
+    estimate (``LocalEstimate``, ``VelocityEstimate``) is track 0, a velocity-only one with
+    empty x, y. Other outputs (position reports, line objects) have no rows here."""
     for out in outputs:
         if isinstance(out, TrackSet):
             for track in out.tracks:
                 yield TrackRow(out.t, track.track, track.x, track.y, track.vx, track.vy)
-        else:
+        elif isinstance(out, (LocalEstimate, VelocityEstimate)):
             yield TrackRow(out.t, SINGLE_TARGET_TRACK, out.x, out.y, out.vx, out.vy)
+
+
+def output_objects(outputs: Iterable[Message]) -> list[ObjectRow]:
+    """objects.csv rows of tracker outputs: the last ``LineObjectEstimate`` of each object (a
+    later estimate of a pass refines an earlier one), by object number."""
+    latest: dict[int, LineObjectEstimate] = {}
+    for out in outputs:
+        if isinstance(out, LineObjectEstimate):
+            latest[out.object] = out
+    return [ObjectRow(m.object, m.t_first, m.t_last, m.entry_x, m.entry_y, m.exit_x, m.exit_y, m.vx, m.vy)
+            for _, m in sorted(latest.items())]

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from .trackers import runs_on_peers
+
 
 @dataclass(frozen=True)
 class ServiceCommand:
@@ -24,15 +26,23 @@ class ServiceCommand:
 
 
 def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None = None, speed: float = 1.0,
-                   loop: bool = False, record: str | None = None) -> list[ServiceCommand]:
-    """The services in start order: agents and base station, the recorder if ``record``, and
-    last the replay of ``source`` (if any), which waits for all the others."""
+                   loop: bool = False, record: str | None = None, estimates: str | None = None,
+                   tracker_args: tuple[str, ...] = ()) -> list[ServiceCommand]:
+    """The services in start order: the sensor agents, the peer agents if ``tracker`` runs on
+    them, the base station, the recorder if ``record``, and last the replay of ``source`` (if
+    any), which waits for all the others. ``estimates``: the peer tracker whose estimates
+    join mcmcda's reports (the peer agents run it); ``tracker_args``: further base-station
+    options of the tracker, for the service that runs it."""
     bus = ("-e", endpoint, "--net", net)
-    services = [
-        ServiceCommand("sensor_agent", bus),
-        ServiceCommand("peer_agent", ("--tracker", tracker, *bus)),
-        ServiceCommand("basestation", ("--tracker", tracker, *bus)),
-    ]
+    services = [ServiceCommand("sensor_agent", bus)]
+    if runs_on_peers(tracker):
+        services.append(ServiceCommand("peer_agent", ("--tracker", tracker, *tracker_args, *bus)))
+        services.append(ServiceCommand("basestation", ("--tracker", tracker, *bus)))
+    else:
+        if estimates is not None:
+            services.append(ServiceCommand("peer_agent", ("--tracker", estimates, *bus)))
+        extra = (*tracker_args, *(("--estimates", estimates) if estimates is not None else ()))
+        services.append(ServiceCommand("basestation", ("--tracker", tracker, *extra, *bus)))
     if record is not None:
         services.append(ServiceCommand("recorder", ("--out", record, *bus)))
     if source is not None:

@@ -15,7 +15,7 @@ import sys
 import threading
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import zenoh
@@ -27,7 +27,8 @@ from .formats import open_dataset
 from .keys import Keys, parse_key
 from .messages import Clock, MessageError, decode
 from .stack import stack_commands
-from .trackers import TRACKER_NAMES
+from .track_command import add_tracker_arguments, tracker_arguments, tracker_options
+from .trackers import TRACKER_NAMES, check_options as make_tracker_check
 
 SHOWN = (("raw", "events"), ("transition", "transitions"), ("estimate", "estimates"), ("tracks", "tracks"))
 STOP_TIMEOUT = 15.0
@@ -36,6 +37,7 @@ STOP_TIMEOUT = 15.0
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("source", nargs="?", metavar="DIR", help="dataset folder or recording (.mcap) to replay")
     parser.add_argument("--tracker", choices=TRACKER_NAMES, default="equal-weight", help="tracker (default: %(default)s)")
+    add_tracker_arguments(parser)
     parser.add_argument("--speed", type=float, default=1.0,
                         help="replay speed: 1 real time, 0 as fast as flow control allows (default: %(default)s)")
     parser.add_argument("--loop", action="store_true", help="replay in a loop")
@@ -122,8 +124,14 @@ def run(args: argparse.Namespace) -> int:
     if args.record is not None and not args.record.endswith(".mcap"):
         raise CommandError(f"--record {args.record}: a recording's name must end in .mcap")
     net = args.net or _source_net(args.source) or "default"
+    options = replace(tracker_options(args), speed=None)  # --speed here is the replay's
+    try:
+        make_tracker_check(args.tracker, options)
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
     commands = stack_commands(tracker=args.tracker, endpoint=args.listen, net=net, source=args.source,
-                              speed=args.speed, loop=args.loop, record=args.record)
+                              speed=args.speed, loop=args.loop, record=args.record, estimates=options.estimates,
+                              tracker_args=tracker_arguments(options))
     try:
         router = zenoh.open(router_config([args.listen]))
     except zenoh.ZError as exc:

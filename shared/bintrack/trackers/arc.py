@@ -58,7 +58,7 @@ import math
 
 import numpy as np
 
-from ..arcs import TOL, Arc, ArcSet, depth_extreme, overlap_matrix
+from ..arcs import TOL, Arc, ArcSet, combine, overlap_matrix
 from ..velocity import LocalClock, VelocityEstimator
 from ..geometry import TWO_PI, normalize_angle
 from ..messages import Deployment, LocalEstimate, Transition
@@ -154,12 +154,17 @@ class ArcTracker:
     def update(self, transition: Transition) -> list[LocalEstimate]:
         out = self._estimates(self.pending.due(transition.t))
         i = self.net.index.get(transition.sensor)
-        if i is not None:
-            now = self.net.is_present(i, transition.value)
-            if now != self.present[i]:
-                self.present[i] = now
-                self.pending.hold(transition)
+        if i is not None and self._apply(i, transition.value):
+            self.pending.hold(transition)
         return out
+
+    def _apply(self, i: int, value: int) -> bool:
+        """Record node ``i``'s new status ``value``; whether it is a crossing of i's circle
+        (presence changed), the transitions that are estimated."""
+        now = self.net.is_present(i, value)
+        crossed = now != self.present[i]
+        self.present[i] = now
+        return bool(crossed)
 
     def flush(self, t: float) -> list[LocalEstimate]:
         return self._estimates(self.pending.flush(t))
@@ -192,17 +197,9 @@ class ArcTracker:
         ones = self.present[nbrs] & (one_len > TOL)  # a "1" that cannot meet i's ring is a fault
         survive = counter_deletion(overlap_matrix(one_start[ones], one_len[ones]))
         in_arcs = [ArcSet([Arc(s, l)]) for s, l in zip(one_start[ones][survive], one_len[ones][survive])]
-        fa = ArcSet.full()
-        for arc in in_arcs:
-            fa = fa & arc
-        if fa.is_empty:
-            fa = depth_extreme(in_arcs, ArcSet.full(), deepest=True)
         zeros = ~self.present[nbrs] & (zero_len > TOL)
-        remaining = fa - ArcSet(zip(zero_start[zeros], zero_len[zeros]))
-        if remaining.is_empty:
-            out_arcs = [ArcSet([Arc(s, l)]) for s, l in zip(zero_start[zeros], zero_len[zeros])]
-            remaining = depth_extreme(out_arcs, fa, deepest=False)
-        return remaining, nbrs[ones][survive]
+        out_arcs = [ArcSet([Arc(s, l)]) for s, l in zip(zero_start[zeros], zero_len[zeros])]
+        return combine(ArcSet.full(), in_arcs, out_arcs), nbrs[ones][survive]
 
     def _reference(self, i: int) -> np.ndarray | None:
         """The most recent estimate (x, y) of node ``i`` or a neighbour, if any."""

@@ -1,0 +1,170 @@
+"""Fusion (paper 004 §III) and online MCMCDA (§IV; Oh, Russell and Sastry 2009)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bintrack.errors import CommandError
+from bintrack.formats import TrackRow, open_dataset
+from bintrack.fusion import FusionConfig, GridFusion, ScanFusion
+from bintrack.mcmcda import MCMCDAConfig, OnlineMCMCDA
+from bintrack.messages import Deployment, DiskSensor, MotionSensor, PositionReport, PositionReports, Region, Transition, TrackSet
+from bintrack.metrics import multi_target_scores, truth_paths
+from bintrack.pipeline import run_tracker
+from bintrack.trackers import make_tracker
+
+from conftest import REPO
+
+
+def grid_deployment(pd: float | None = 0.7, pfa: float | None = 0.05) -> Deployment:
+    sensors = [DiskSensor(id=f"n{i:02d}{j:02d}", x=5.0 * i, y=5.0 * j, range=8.0, pd=pd, pfa=pfa, period=0.5)
+               for i in range(10) for j in range(10)]
+    return Deployment(name="g", units="m", region=Region(xmin=-5, ymin=-5, xmax=50, ymax=50), sensors=sensors)
+
+
+def detecting_near(fusion: GridFusion, deployment: Deployment, targets) -> np.ndarray:
+    y = np.zeros(len(fusion.ids), dtype=bool)
+    for s in deployment.sensors:
+        y[fusion.index[s.id]] = any(math.hypot(s.x - tx, s.y - ty) <= s.range for tx, ty in targets)
+    return y
+
+
+def test_one_target_seen_by_every_covering_sensor_gives_one_report_near_it():
+    deployment = grid_deployment()
+    fusion = GridFusion(deployment)
+    reports = fusion.reports(detecting_near(fusion, deployment, [(21.0, 23.0)]))
+    assert len(reports) == 1
+    assert math.hypot(reports[0].x - 21.0, reports[0].y - 23.0) < 2.0
+    assert reports[0].cov[0][0] > 0 and reports[0].cov[1][1] > 0
+
+
+def test_two_distant_targets_give_two_reports():
+    deployment = grid_deployment()
+    fusion = GridFusion(deployment)
+    reports = fusion.reports(detecting_near(fusion, deployment, [(8.0, 8.0), (38.0, 36.0)]))
+    assert len(reports) == 2
+    found = sorted((round(r.x), round(r.y)) for r in reports)
+    assert math.hypot(found[0][0] - 8, found[0][1] - 8) < 3 and math.hypot(found[1][0] - 38, found[1][1] - 36) < 3
+
+
+def test_fewer_detections_than_the_threshold_give_no_report():
+    deployment = grid_deployment()
+    fusion = GridFusion(deployment, FusionConfig(threshold=3))
+    y = np.zeros(len(fusion.ids), dtype=bool)
+    y[fusion.index["n0505"]] = y[fusion.index["n0506"]] = True
+    assert fusion.reports(y) == []
+    assert len(GridFusion(deployment, FusionConfig(threshold=2)).reports(y)) == 1
+
+
+def test_a_cell_is_computed_only_when_its_owner_detects():
+    deployment = grid_deployment()
+    fusion = GridFusion(deployment)
+    y = detecting_near(fusion, deployment, [(22.5, 22.5)])
+    cells, _ = fusion.detection_likelihood(y)
+    assert np.all(y[fusion.owner[cells]])
+    y[fusion.index["n0404"]] = False
+    cells, _ = fusion.detection_likelihood(y)
+    assert not np.any(fusion.owner[cells] == fusion.index["n0404"])
+
+
+def test_fusion_needs_disk_sensors():
+    deployment = Deployment(name="m", units="m", region=Region(xmin=0, ymin=0, xmax=10, ymax=10),
+                            sensors=[MotionSensor(id="m1", x=1, y=1, period=1.0)])
+    with pytest.raises(CommandError, match="disk or sector"):
+        GridFusion(deployment)
+
+
+def test_scans_see_the_status_at_their_time_and_come_out_once_complete():
+    deployment = grid_deployment()
+    fusion = ScanFusion(deployment)
+    on = [Transition(t=1.0, sensor=s, value=1, previous=0, seq=1) for s in ("n0404", "n0405", "n0504", "n0505")]
+    out = []
+    for tr in on:
+        out += fusion.update(tr)
+    assert out == []  # scan 1.0 may still get transitions at t = 1.0
+    out = fusion.flush(1.2)
+    assert [s.t for s in out] == [1.0] and math.hypot(out[0].reports[0].x - 22.5, out[0].reports[0].y - 22.5) < 1.5
+    out = fusion.update(Transition(t=1.7, sensor="n0404", value=0, previous=1, seq=2))
+    assert [s.t for s in out] == [1.5] and out[0].reports
+    assert [s.t for s in fusion.flush(math.inf)] == [2.0]
+
+
+CLUTTER_DENSITY = 2.0 / 60.0 ** 2  # 2 false reports per scan on 60 × 60
+
+
+def constant_velocity_reports(seed: int, scans: int = 100, clutter: float = 2.0, pd: float = 0.85):
+    """Three people at constant velocity (two crossing), reports with 1.5 m noise, Poisson clutter."""
+    rng = np.random.default_rng(seed)
+    people = [(0.0, 10.0, 1.2, 0.6), (0.0, 40.0, 1.2, -0.6), (50.0, 5.0, -0.4, 1.0)]
+    out = []
+    for k in range(scans):
+        t = 0.5 * k
+        reports = [PositionReport(x=x + vx * t + rng.normal(0, 1.5), y=y + vy * t + rng.normal(0, 1.5),
+                                  cov=((2.25, 0.0), (0.0, 2.25)))
+                   for x, y, vx, vy in people if rng.random() < pd]
+        reports += [PositionReport(x=rng.uniform(0, 60), y=rng.uniform(0, 60), cov=((2.25, 0.0), (0.0, 2.25)))
+                    for _ in range(rng.poisson(clutter))]
+        out.append(PositionReports(t=t, reports=reports))
+    return people, out
+
+
+def test_mcmcda_tracks_three_targets_through_clutter_with_persistent_identities():
+    people, scans = constant_velocity_reports(seed=3)
+    tracker = OnlineMCMCDA(MCMCDAConfig(seed=1, false_alarm_rate=CLUTTER_DENSITY))
+    results = [tracker.step(s) for s in scans]
+    settled = results[10:]
+    right = np.mean([len(r.tracks) == 3 for r in settled])
+    assert right >= 0.9
+    # each person keeps one identity: the track nearest to person 0 at the end is the one at scan 20
+    def nearest(r: TrackSet, k: int) -> int:
+        x, y, vx, vy = people[k]
+        return min(r.tracks, key=lambda tr: math.hypot(tr.x - (x + vx * r.t), tr.y - (y + vy * r.t))).track
+    for k in range(3):
+        assert nearest(settled[10], k) == nearest(settled[-1], k)
+    last = settled[-1]
+    for tr in last.tracks:
+        assert math.hypot(tr.vx, tr.vy) == pytest.approx(1.3, abs=0.6) or math.hypot(tr.vx, tr.vy) < 2
+
+
+def test_mcmcda_rejects_pure_clutter():
+    rng = np.random.default_rng(5)
+    tracker = OnlineMCMCDA(MCMCDAConfig(seed=0, false_alarm_rate=CLUTTER_DENSITY))
+    published = 0
+    for k in range(60):
+        reports = [PositionReport(x=rng.uniform(0, 60), y=rng.uniform(0, 60), cov=((2.25, 0), (0, 2.25)))
+                   for _ in range(rng.poisson(2.0))]
+        published += len(tracker.step(PositionReports(t=0.5 * k, reports=reports)).tracks)
+    assert published <= 3
+
+
+def test_mcmcda_is_deterministic_given_the_seed():
+    _, scans = constant_velocity_reports(seed=4, scans=40)
+    first, again, other = (OnlineMCMCDA(MCMCDAConfig(seed=seed)) for seed in (7, 7, 8))
+    results = [first.step(s) for s in scans]
+    assert [again.step(s) for s in scans] == results
+    assert [other.step(s) for s in scans] != results  # the seed does drive the chain
+
+
+def test_the_posterior_of_the_map_never_falls_below_the_initial_state():
+    _, scans = constant_velocity_reports(seed=6, scans=30)
+    tracker = OnlineMCMCDA(MCMCDAConfig(seed=2, n_mc=50))
+    for s in scans:
+        tracker.step(s)
+        assert tracker.last_score >= 0.0  # all reports as false alarms scores 0
+
+
+def test_mcmcda_tracker_on_darpa_grid_1_counts_one_person():
+    ds = open_dataset(REPO / "datasets" / "darpa-grid-1")
+    outputs = list(run_tracker(ds, make_tracker("mcmcda", ds.deployment)))
+    tracksets = [o for o in outputs if isinstance(o, TrackSet)]
+    assert len([o for o in outputs if isinstance(o, PositionReports)]) == len(tracksets) > 100
+    paths = truth_paths(ds.truth())
+    entry, leave = min(p.start for p in paths.values()), max(p.end for p in paths.values())
+    inside = [ts for ts in tracksets if entry <= ts.t <= leave]
+    rows = [TrackRow(ts.t, tr.track, tr.x, tr.y, tr.vx, tr.vy) for ts in inside for tr in ts.tracks]
+    scores = multi_target_scores(rows, paths, 10.0, times=[ts.t for ts in inside])
+    assert scores.count_correct >= 0.9
+    assert scores.gospa_mean < 3.0
