@@ -59,15 +59,17 @@ def test_fewer_detections_than_the_threshold_give_no_report():
     assert len(GridFusion(deployment, FusionConfig(threshold=2)).reports(y)) == 1
 
 
-def test_a_cell_is_computed_only_when_its_owner_detects():
+def test_with_the_papers_trigger_a_cell_is_computed_only_when_its_owner_detects():
     deployment = grid_deployment()
-    fusion = GridFusion(deployment)
+    fusion = GridFusion(deployment, FusionConfig(owner_detects=True))
     y = detecting_near(fusion, deployment, [(22.5, 22.5)])
     cells, _ = fusion.detection_likelihood(y)
     assert np.all(y[fusion.owner[cells]])
     y[fusion.index["n0404"]] = False
     cells, _ = fusion.detection_likelihood(y)
     assert not np.any(fusion.owner[cells] == fusion.index["n0404"])
+    everywhere, _ = GridFusion(deployment).detection_likelihood(y)
+    assert np.any(fusion.owner[everywhere] == fusion.index["n0404"])
 
 
 def test_fusion_needs_disk_sensors():

@@ -8,8 +8,9 @@ detection part of eq. (4),
 
 computed only where at least ``n_d`` sensors of S(c) detect (the threshold test that replaces
 the false-detection part, which would need every sensor's report). In the distributed form each
-cell is assigned to one sensor that covers it (here the nearest), and a sensor computes the
-likelihoods of its cells only when it itself reports a detection. Cells whose likelihood was
+cell is assigned to one sensor that covers it (here the nearest), which computes it from its
+own and its neighbours' reports; the paper has a sensor do so only when it itself reports a
+detection (``FusionConfig.owner_detects``). Cells whose likelihood was
 computed are clustered: take a seed cell, gather the remaining cells within the sensing radius
 of it, remove them, repeat; each cluster's likelihood-weighted centre of mass is one position
 report. The paper picks seeds at random; we take the most likely remaining cell, which is
@@ -45,8 +46,10 @@ class FusionConfig:
     """n_d: detections a cell needs before its detection-likelihood is computed"""
     scan: float | None = None
     """scan period, s; default: the sensors' sampling period (0.5 s if they have none)"""
-    owner_detects: bool = True
-    """compute a cell only when the sensor it is assigned to detects (§III distributed form)"""
+    owner_detects: bool = False
+    """compute a cell only when the sensor it is assigned to detects itself (the paper's
+    trigger); by default a sensor computes its cells whenever n_d covering sensors detect,
+    which does not lose the cells of a sensor that missed the target (1 − pd of the time)"""
     full: bool = True
     """weight cells by eq. (4) in full (up to a common factor) rather than its detection part"""
     clustering: Literal["paper", "explain"] = "explain"
@@ -130,8 +133,8 @@ class GridFusion:
         """Cells whose likelihood is computed for the 0/1 vector ``detecting`` (one entry per
         sensor, in ``ids`` order), and their log-likelihoods.
 
-        A cell counts when at least n_d covering sensors detect and its owner detects (the owner
-        computes it, §III distributed form). The value is the detection part of eq. (4); with
+        A cell counts when at least n_d covering sensors detect (and, with ``owner_detects``, the
+        sensor it is assigned to, which computes it, §III distributed form). The value is the detection part of eq. (4); with
         ``full``, eq. (4) itself up to a factor common to all cells (the covering sensors'
         likelihood ratios against a false detection), which is just as local. Sensors outside
         ``active`` (default: all) take no part: neither their detections nor their misses count.
