@@ -170,3 +170,9 @@ def test_mcmcda_tracker_on_darpa_grid_1_counts_one_person():
     scores = multi_target_scores(rows, paths, 10.0, times=[ts.t for ts in inside])
     assert scores.count_correct >= 0.9
     assert scores.gospa_mean < 3.0
+
+
+@pytest.mark.parametrize("field, value", [("pd", 1.0), ("window", 1), ("false_alarm_rate", 0.0), ("n_mc", 0)])
+def test_a_parameter_out_of_range_is_refused(field, value):
+    with pytest.raises(ValueError, match=field):
+        MCMCDAConfig(**{field: value})

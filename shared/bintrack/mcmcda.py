@@ -36,7 +36,7 @@ from __future__ import annotations
 import math
 import random
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from .messages import PositionReports, Track, TrackSet
 
@@ -80,6 +80,17 @@ class MCMCDAConfig:
     """reports a track needs (fixed and in the window) before it is published"""
     coast: int = 2
     """scans a published track is predicted past its last report before it is dropped"""
+
+    def __post_init__(self):
+        checks = [("window", self.window >= 2), ("n_mc", self.n_mc >= 1), ("max_misses", self.max_misses >= 0),
+                  ("pd", 0 < self.pd < 1), ("termination", 0 < self.termination < 1), ("stop", 0 < self.stop < 1),
+                  ("false_alarm_rate", self.false_alarm_rate > 0), ("birth_rate", self.birth_rate > 0),
+                  ("max_speed", self.max_speed > 0), ("initial_speed", self.initial_speed > 0),
+                  ("process_noise", self.process_noise > 0), ("extra_variance", self.extra_variance >= 0),
+                  ("gate_sigmas", self.gate_sigmas > 0), ("coast", self.coast >= 0), ("min_reports", self.min_reports >= 2)]
+        bad = [name for name, ok in checks if not ok]
+        if bad:
+            raise ValueError(f"MCMCDA parameter out of range: {', '.join(f'{n}={getattr(self, n)}' for n in bad)}")
 
 
 @dataclass
@@ -129,16 +140,6 @@ class _Track:
     label: int | None = None
 
 
-@dataclass
-class _Window:
-    """The reports of the window and the gate between them."""
-
-    first: int  # first scan of the window
-    now: int  # current (last) scan
-    reports: dict[int, _Report] = field(default_factory=dict)
-    by_scan: dict[int, list[int]] = field(default_factory=dict)
-
-
 class OnlineMCMCDA:
     """Online MCMCDA over a sliding window of scans; ``step`` per scan gives the scan's tracks."""
 
@@ -174,8 +175,6 @@ class OnlineMCMCDA:
         while len(self._scans) > self.config.window:
             self._fix_oldest()
         self._expire_anchors()
-        self._times = {k: t for k, t, _ in self._scans}
-        self._first = self._scans[0][0]
         self._by_scan = {k: ids for k, _, ids in self._scans}
         previous = [(_Track(t.reports, t.anchor, t.label)) for t in self._tracks]
         self._run_chain()
