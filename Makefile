@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 BINTRACK := $(VENV)/bin/bintrack
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test datasets clean
+.PHONY: demo test datasets clean bench
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,6 +18,19 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q
+
+# Our MCMCDA against Stone Soup's GNN and JPDA (issue 6): needs the optional extra `bench`
+# (Stone Soup), which only this target installs. 2–5 min on 2 cores; `make bench BENCH_ARGS=--quick`
+# tries one Stone Soup setting instead of tuning (about 1 min).
+BENCH_STAMP := $(VENV)/.installed-bench
+BENCH_ARGS ?=
+
+$(BENCH_STAMP): $(STAMP) pyproject.toml
+	$(PY) -m pip install --quiet -e '.[test,bench]'
+	touch $(BENCH_STAMP)
+
+bench: $(BENCH_STAMP)
+	$(PY) benchmarks/mcmcda_vs_stonesoup.py $(BENCH_ARGS)
 
 # Remakes every shipped dataset byte for byte (seeds fixed).
 datasets: $(STAMP)
