@@ -30,7 +30,7 @@ from bintrack.messages import (Clock, LineObjectEstimate, LocalEstimate, Message
 from bintrack.ordering import ReorderBuffer
 from bintrack.pipeline import SINGLE_TARGET_TRACK
 from bintrack.track_command import add_tracker_arguments, tracker_options
-from bintrack.trackers import TRACKER_NAMES, make_tracker, runs_on_peers
+from bintrack.trackers import TRACKER_NAMES, check_options, make_tracker, runs_on_peers
 from bintrack.transition_intake import TransitionConsumer
 
 
@@ -44,11 +44,11 @@ class Basestation(TransitionConsumer):
         self.latest: TrackSet | None = None
         self.serve(self.keys.tracks(), self.on_tracks_query)
         if not runs_on_peers(self.args.tracker):
-            options = replace(tracker_options(self.args), estimates=None)  # live, the peer agents run it
+            options = tracker_options(self.args)
             try:
-                tracker = make_tracker(self.args.tracker, deployment, options)
-                if self.args.estimates is not None:
-                    make_tracker(self.args.tracker, deployment, tracker_options(self.args))
+                check_options(self.args.tracker, options)
+                # live, the peer agents run the estimates' tracker
+                tracker = make_tracker(self.args.tracker, deployment, replace(options, estimates=None))
             except ValueError as exc:
                 raise CommandError(str(exc)) from None
             peers = ("peer_agent",) if self.args.estimates is not None else ()

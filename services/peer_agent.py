@@ -11,10 +11,12 @@ from __future__ import annotations
 import argparse
 import sys
 
-from bintrack.argtypes import int_at_least, positive_float
+from bintrack.argtypes import positive_float
 from bintrack.bus import add_bus_arguments, service_main
 from bintrack.messages import LocalEstimate
-from bintrack.trackers import PEER_TRACKERS, TrackerOptions, make_tracker
+from bintrack.errors import CommandError
+from bintrack.track_command import add_tracker_arguments, tracker_options
+from bintrack.trackers import PEER_TRACKERS, make_tracker
 from bintrack.transition_intake import TransitionConsumer
 
 
@@ -26,8 +28,11 @@ class PeerAgent(TransitionConsumer):
         if deployment is None:
             return
         self.hosted = set(self.args.sensors.split(",")) if self.args.sensors else None
-        options = TrackerOptions(speed=self.args.speed, window=self.args.window)
-        self.start_intake(deployment, make_tracker(self.args.tracker, deployment, options))
+        try:
+            tracker = make_tracker(self.args.tracker, deployment, tracker_options(self.args))
+        except ValueError as exc:
+            raise CommandError(str(exc)) from None
+        self.start_intake(deployment, tracker)
 
     def emit(self, outputs) -> None:
         for estimate in outputs:
@@ -40,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--tracker", required=True, choices=PEER_TRACKERS, help="tracker the nodes run")
     parser.add_argument("--sensors", metavar="ID,…", help="nodes whose estimates this agent publishes (default: all)")
     parser.add_argument("--speed", type=positive_float, help="target speed, units/s, for trackers that use one")
-    parser.add_argument("--window", type=int_at_least(2), help="line-fit: estimates in the fitted history (default: 10)")
+    add_tracker_arguments(parser)
     parser.add_argument("--lateness", type=positive_float, default=1.0,
                         help="event-time lateness bound of transitions, s (default: %(default)s)")
     parser.add_argument("--id", help="instance id (default: host-pid)")
