@@ -168,14 +168,14 @@ def testbed(folder: Path) -> dict:
     """The streaming tracker on the shipped testbed: estimates, errors and what the plots need."""
     from bintrack.formats import open_dataset
     from bintrack.metrics import entry_exit_errors, truth_paths
-    from bintrack.pipeline import run_tracker
+    from bintrack.pipeline import output_objects, run_tracker
     from bintrack.sim.scenarios import simulate, build_scenario
-    from bintrack.trackers.adaptive_basis import AdaptiveBasisTracker, object_rows
+    from bintrack.trackers.adaptive_basis import AdaptiveBasisTracker
 
     dataset = open_dataset(folder)
     tracker = AdaptiveBasisTracker(dataset.deployment)
     started = time.perf_counter()
-    rows = object_rows(run_tracker(dataset, tracker))
+    rows = output_objects(run_tracker(dataset, tracker))
     elapsed = time.perf_counter() - started
     truth = truth_paths(dataset.truth())
     errors = entry_exit_errors(rows, truth)

@@ -24,9 +24,9 @@ from bintrack.errors import CommandError
 from bintrack.formats import ObjectRow, open_dataset
 from bintrack.messages import Calibration, Deployment, DiskSensor, LineObjectEstimate, LineSensor, Region
 from bintrack.metrics import entry_exit_errors, truth_paths
-from bintrack.pipeline import TrackerDriver, run_tracker
+from bintrack.pipeline import TrackerDriver, output_objects, run_tracker
 from bintrack.sim.scenarios import build_scenario
-from bintrack.trackers.adaptive_basis import AdaptiveBasisTracker, object_rows
+from bintrack.trackers.adaptive_basis import AdaptiveBasisTracker
 from bintrack.transitions import TransitionDetector
 
 from conftest import REPO
@@ -244,7 +244,7 @@ def _run(deployment, events, flush_every=False, **kw) -> tuple[AdaptiveBasisTrac
 
 
 def _errors(out, truth, first=4):
-    errors = [e for e in entry_exit_errors(object_rows(out), truth) if e.object >= first]
+    errors = [e for e in entry_exit_errors(output_objects(out), truth) if e.object >= first]
     return np.array([e.entry for e in errors]), np.array([e.exit for e in errors])
 
 
@@ -374,7 +374,7 @@ def test_tracker_constructor_errors():
 def test_object_rows_are_the_estimates_field_by_field():
     est = [LineObjectEstimate(object=2, t_first=1, t_last=2, entry_x=0, entry_y=1, exit_x=16, exit_y=2, vx=1, vy=0),
            LineObjectEstimate(object=1, t_first=0, t_last=1, entry_x=0, entry_y=3, exit_x=16, exit_y=4, vx=1, vy=.1)]
-    assert object_rows(est) == [ObjectRow(1, 0, 1, 0, 3, 16, 4, 1, .1), ObjectRow(2, 1, 2, 0, 1, 16, 2, 1, 0)]
+    assert output_objects(est) == [ObjectRow(1, 0, 1, 0, 3, 16, 4, 1, .1), ObjectRow(2, 1, 2, 0, 1, 16, 2, 1, 0)]
 
 
 def test_non_line_and_repeated_transitions_are_ignored(testbed):

@@ -82,5 +82,4 @@ def output_objects(outputs: Iterable[Message]) -> list[ObjectRow]:
     for out in outputs:
         if isinstance(out, LineObjectEstimate):
             latest[out.object] = out
-    return [ObjectRow(m.object, m.t_first, m.t_last, m.entry_x, m.entry_y, m.exit_x, m.exit_y, m.vx, m.vy)
-            for _, m in sorted(latest.items())]
+    return [ObjectRow(*(getattr(m, f) for f in ObjectRow._fields)) for _, m in sorted(latest.items())]

@@ -36,7 +36,6 @@ estimated beams cannot be estimated and is skipped (listed in :attr:`skipped`).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
 
 import numpy as np
 
@@ -51,7 +50,6 @@ from ..adaptive_basis import (
     frame_from_sensors,
 )
 from ..errors import CommandError
-from ..formats import ObjectRow
 from ..messages import Deployment, LineObjectEstimate, LineSensor, Transition
 
 NAME = "adaptive-basis"
@@ -242,10 +240,3 @@ class AdaptiveBasisTracker:
         known = self.basis.line_known()
         real = self.frame.lines(self.basis.lines)
         return {sid: (float(real[k, 0]), float(real[k, 1])) for k, sid in enumerate(self.ids) if known[k]}
-
-
-def object_rows(estimates: Iterable[LineObjectEstimate]) -> list[ObjectRow]:
-    """objects.csv rows of ``estimates``: field by field (the message and the row have the same
-    fields), the last estimate of each object, sorted by object."""
-    latest = {m.object: m for m in estimates}
-    return [ObjectRow(*(getattr(m, f) for f in ObjectRow._fields)) for _, m in sorted(latest.items())]
