@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 
 from .errors import CommandError
 from .messages import Deployment, DiskSensor, PositionReport, PositionReports, SectorSensor, Transition
+from .sensing import reports_presence
 
 DEFAULT_SCAN = 0.5  # s, when the sensors are event-driven (no sampling period)
 # The variance of a uniform position in a cell of side h is h²/12; a cluster of one cell gets it.
@@ -248,8 +249,7 @@ class ScanFusion:
         self.grid = GridFusion(deployment, config)
         self.period = scan_period(deployment, config)
         self._detecting = np.zeros(len(self.grid.ids), dtype=bool)
-        by_id = deployment.by_id()
-        self._sector = np.array([isinstance(by_id[s], SectorSensor) for s in self.grid.ids])
+        self._sensors = deployment.by_id()
         self._next: int | None = None  # index of the next scan to emit
         self._last_t: float | None = None
 
@@ -258,7 +258,7 @@ class ScanFusion:
         out = self.flush(math.nextafter(transition.t, -math.inf))
         i = self.grid.index.get(transition.sensor)
         if i is not None:
-            self._detecting[i] = transition.value >= 0 if self._sector[i] else transition.value == 1
+            self._detecting[i] = reports_presence(self._sensors[transition.sensor], transition.value)
         if self._next is None:
             self._next = self.scan_of(transition.t)
         self._last_t = transition.t

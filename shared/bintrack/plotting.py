@@ -20,6 +20,7 @@ from matplotlib.patches import Circle, Rectangle
 
 from .formats import Dataset, Event, ObjectRow, TrackRow
 from .messages import Deployment, DiskSensor, LineSensor, MotionSensor, SectorSensor
+from .sensing import reports_presence
 
 if TYPE_CHECKING:
     from .evaluation import Evaluation, Series
@@ -32,16 +33,6 @@ DENSE_TRACK_ROWS = 400
 SENSOR_COLOUR = "0.55"
 DETECTED_COLOUR = "tab:orange"
 TRUTH_COLOUR = "black"
-
-
-def reports_presence(sensor, value: int) -> bool:
-    """Whether ``value`` says ``sensor`` saw a target: disk 1, sector 0..s−1, line 1.
-    Closer/farther (motion) sensors report every period and never count as detecting."""
-    if isinstance(sensor, SectorSensor):
-        return value >= 0
-    if isinstance(sensor, (DiskSensor, LineSensor)):
-        return value == 1
-    return False
 
 
 def detected_sensors(deployment: Deployment, events: Iterable[Event]) -> set[str]:

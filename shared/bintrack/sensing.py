@@ -201,3 +201,13 @@ def model_for(sensor: DiskSensor | SectorSensor | MotionSensor | LineSensor) -> 
     if isinstance(sensor, LineSensor):
         return LineModel.from_sensor(sensor)
     raise TypeError(f"no sensing model for {type(sensor).__name__}")
+
+
+def reports_presence(sensor, value: int) -> bool:
+    """Whether ``value`` says ``sensor`` saw a target: disk 1, sector 0..s−1, line 1.
+    Closer/farther (motion) sensors report every period and never count as detecting."""
+    if isinstance(sensor, SectorSensor):
+        return value >= 0
+    if isinstance(sensor, (DiskSensor, LineSensor)):
+        return value == 1
+    return False

@@ -9,6 +9,7 @@ from scipy.spatial import cKDTree
 
 from ..messages import Deployment, DiskSensor, LocalEstimate, SectorSensor, Transition
 from ..errors import CommandError
+from ..sensing import reports_presence
 
 
 class Tracker(Protocol):
@@ -38,7 +39,7 @@ class DiskNetwork:
         self.index = {sid: i for i, sid in enumerate(self.ids)}
         self.positions = np.array([(s.x, s.y) for s in sensors], dtype=float)
         self.ranges = np.array([s.range for s in sensors], dtype=float)
-        self._sector = np.array([isinstance(s, SectorSensor) for s in sensors])
+        self._sensors = sensors
         tree = cKDTree(self.positions)
         pairs = tree.query_pairs(r=2.0 * float(self.ranges.max()), output_type="ndarray")
         gap = np.linalg.norm(self.positions[pairs[:, 0]] - self.positions[pairs[:, 1]], axis=1)
@@ -54,7 +55,7 @@ class DiskNetwork:
 
     def is_present(self, i: int, value: int) -> bool:
         """Whether status ``value`` of node ``i`` means the target is in range (disk 1, sector ≥ 0)."""
-        return value >= 0 if self._sector[i] else value == 1
+        return reports_presence(self._sensors[i], value)
 
     def neighbourhood(self, i: int) -> np.ndarray:
         """Node ``i`` and its neighbours."""
