@@ -199,8 +199,7 @@ class OnlineMCMCDA:
                 track.anchor = Anchor(track.label, k, t, ax, ay, 1)
             else:
                 a = track.anchor
-                sx, _ = _update(_predict(a.x, t - a.t, self.config.process_noise), rep.x, rep.rx)
-                sy, _ = _update(_predict(a.y, t - a.t, self.config.process_noise), rep.y, rep.ry)
+                sx, sy, _ = self._advance(a.x, a.y, a.t, rep)
                 track.anchor = Anchor(a.identity, k, t, sx, sy, a.reports + 1)
             track.reports = tuple(r for r in track.reports if r != rid)
         for rid in ids:
@@ -227,6 +226,24 @@ class OnlineMCMCDA:
 
     # ------------------------------------------------------------------ scoring
 
+    def _advance(self, sx, sy, t: float, rep: _Report):
+        """Predict the per-axis states from time ``t`` (s) to ``rep``'s and update them with it:
+        (state x, state y, log-likelihood of the innovations)."""
+        q = self.config.process_noise
+        sx, lx = _update(_predict(sx, rep.t - t, q), rep.x, rep.rx)
+        sy, ly = _update(_predict(sy, rep.t - t, q), rep.y, rep.ry)
+        return sx, sy, lx + ly
+
+    def _start(self, track: _Track):
+        """The track's filter before its remaining window reports: (state x, state y, scan and
+        time of the last report taken, reports taken, reports still to take)."""
+        reps = [self._reports[r] for r in track.reports]
+        if track.anchor is not None:
+            a = track.anchor
+            return a.x, a.y, a.scan, a.t, a.reports, reps
+        sx, sy = self._initial(reps[0])
+        return sx, sy, reps[0].scan, reps[0].t, 1, reps[1:]
+
     def _score(self, track: _Track) -> float:
         """log P contribution of ``track`` relative to its window reports being false alarms."""
         key = (id(track.anchor) if track.anchor else None, track.reports)
@@ -234,26 +251,15 @@ class OnlineMCMCDA:
         if cached is not None:
             return cached
         c = self.config
-        reps = [self._reports[r] for r in track.reports]
-        score = 0.0
-        if track.anchor is None:
-            first = reps[0]
-            sx, sy = self._initial(first)
-            last_scan, last_t = first.scan, first.t
-            score += self._log_lb + math.log(c.pd) - self._log_lf
-            rest = reps[1:]
-        else:
-            a = track.anchor
-            sx, sy, last_scan, last_t = a.x, a.y, a.scan, a.t
-            rest = reps
+        sx, sy, last_scan, last_t, _, rest = self._start(track)
+        # a new track's first report: a birth (λ_b, uniform position) that is detected
+        score = self._log_lb + math.log(c.pd) - self._log_lf if track.anchor is None else 0.0
         log_pd, log_md = math.log(c.pd), math.log1p(-c.pd)
         log_stay = math.log1p(-c.termination)
         for rep in rest:
             gap = rep.scan - last_scan
-            dt = rep.t - last_t
-            sx, lx = _update(_predict(sx, dt, c.process_noise), rep.x, rep.rx)
-            sy, ly = _update(_predict(sy, dt, c.process_noise), rep.y, rep.ry)
-            score += lx + ly + gap * log_stay + (gap - 1) * log_md + log_pd - self._log_lf
+            sx, sy, log_n = self._advance(sx, sy, last_t, rep)
+            score += log_n + gap * log_stay + (gap - 1) * log_md + log_pd - self._log_lf
             last_scan, last_t = rep.scan, rep.t
         # after the last report: terminated at some scan up to now, or still alive undetected
         m = self._scan - last_scan
@@ -538,22 +544,12 @@ class OnlineMCMCDA:
                 t.label = None
 
     def _filtered(self, track: _Track):
-        c = self.config
-        if track.anchor is not None:
-            a = track.anchor
-            sx, sy, last_t, count = a.x, a.y, a.t, a.reports
-            reps = [self._reports[r] for r in track.reports]
-        else:
-            first = self._reports[track.reports[0]]
-            sx, sy = self._initial(first)
-            last_t, count = first.t, 1
-            reps = [self._reports[r] for r in track.reports[1:]]
-        for rep in reps:
-            sx, _ = _update(_predict(sx, rep.t - last_t, c.process_noise), rep.x, rep.rx)
-            sy, _ = _update(_predict(sy, rep.t - last_t, c.process_noise), rep.y, rep.ry)
+        """(state x, state y, time of the last report, reports in all) of ``track``."""
+        sx, sy, _, last_t, count, rest = self._start(track)
+        for rep in rest:
+            sx, sy, _ = self._advance(sx, sy, last_t, rep)
             last_t = rep.t
-            count += 1
-        return sx, sy, last_t, count
+        return sx, sy, last_t, count + len(rest)
 
     def _publish(self, t: float) -> TrackSet:
         c = self.config
