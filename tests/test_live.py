@@ -60,12 +60,16 @@ def live_and_offline(dataset: Path, tracker: str, tmp: Path, speed: str = "0",
         assert read_tracks(exported) == expected, what
 
 
+def simulated(tmp_path_factory, scenario: str, *options: str) -> Path:
+    """A dataset of ``bintrack simulate SCENARIO OPTIONS`` in a fresh temporary folder."""
+    folder = tmp_path_factory.mktemp(scenario) / "dataset"
+    assert cli.main(["simulate", scenario, *options, "--out", str(folder)]) == 0
+    return folder
+
+
 @pytest.fixture(scope="module")
 def uniform_dataset(tmp_path_factory) -> Path:
-    folder = tmp_path_factory.mktemp("uniform") / "u60"
-    assert cli.main(["simulate", "uniform-800", "--range", "60", "--trajectory", "random", "--seed", "5",
-                     "--out", str(folder)]) == 0
-    return folder
+    return simulated(tmp_path_factory, "uniform-800", "--range", "60", "--trajectory", "random", "--seed", "5")
 
 
 @pytest.mark.parametrize("tracker", (*BASELINES, "arc", "sector"))
@@ -75,10 +79,8 @@ def test_live_equals_offline_on_a_uniform_dataset(uniform_dataset, tracker, tmp_
 
 @pytest.fixture(scope="module")
 def sector_dataset(tmp_path_factory) -> Path:
-    folder = tmp_path_factory.mktemp("sector") / "s4"
-    assert cli.main(["simulate", "sector-300", "--sectors", "4", "--range", "70", "--trajectory", "random",
-                     "--seed", "5", "--out", str(folder)]) == 0
-    return folder
+    return simulated(tmp_path_factory, "sector-300", "--sectors", "4", "--range", "70", "--trajectory", "random",
+                     "--seed", "5")
 
 
 @pytest.mark.parametrize("tracker", ("sector", "arc"))
@@ -102,10 +104,8 @@ def test_live_equals_offline_for_mcmcda_fed_by_arc_estimates(uniform_dataset, tm
 
 @pytest.fixture(scope="module")
 def motion_dataset(tmp_path_factory) -> Path:
-    folder = tmp_path_factory.mktemp("motion") / "m"
-    assert cli.main(["simulate", "motion", "--nodes", "60", "--duration", "40", "--trajectory", "random-walk",
-                     "--seed", "4", "--out", str(folder)]) == 0
-    return folder
+    return simulated(tmp_path_factory, "motion", "--nodes", "60", "--duration", "40", "--trajectory", "random-walk",
+                     "--seed", "4")
 
 
 @pytest.mark.parametrize("tracker", ("velocity-plane", "svm", "ppr", "motion-rw"))
