@@ -83,7 +83,8 @@ class Case:
     name: str
     path: Path
     paths: dict                      # target -> metrics.TruthPath
-    reports: list = field(default_factory=list)   # PositionReports per scan, in scan order
+    reports: list = field(default_factory=list)   # our tracker's PositionReports per scan, in scan order
+    plain_reports: list = field(default_factory=list)  # the same fusion without track aid (Stone Soup's input)
     ours: dict = field(default_factory=dict)      # scan t -> [(track, x, y)]
     ours_step_s: list = field(default_factory=list)
     tracker_s: float = 0.0           # whole MCMCDATracker over the dataset (fusion + MCMCDA)
@@ -137,6 +138,7 @@ def run_ours(case: Case) -> None:
     time ``OnlineMCMCDA.step`` alone by replaying the same reports into a fresh instance (same
     config and seed, so it must give the same tracks)."""
     from bintrack.formats import open_dataset
+    from bintrack.fusion import FusionConfig
     from bintrack.mcmcda import MCMCDAConfig, OnlineMCMCDA
     from bintrack.messages import PositionReports, TrackSet
     from bintrack.pipeline import run_tracker
@@ -159,6 +161,11 @@ def run_ours(case: Case) -> None:
     case.tracker_s = time.perf_counter() - start
     if len(case.reports) > 1:
         case.scan_period = float(np.median(np.diff([r.t for r in case.reports])))
+
+    # Stone Soup cannot tell our fusion where its tracks expect targets, so it gets the fusion's
+    # reports without that aid (and without the copies made for unresolved targets)
+    plain = MCMCDATracker(dataset.deployment, FusionConfig(track_aided=False), config)
+    case.plain_reports = [out for out in run_tracker(dataset, plain) if isinstance(out, PositionReports)]
 
     online = OnlineMCMCDA(config, tracker.name)
     replayed = {}
@@ -329,7 +336,7 @@ def run_stonesoup(case: Case, kind: str, setting: Setting, config, budget: float
     detections and can run away with many tentative tracks)."""
     extra = float(getattr(config, "extra_variance", 0.0))
     scans = []
-    for r in case.reports:
+    for r in case.plain_reports:
         when = EPOCH + datetime.timedelta(microseconds=round(r.t * 1e6))
         scans.append((when, to_detections(r, when, extra)))
     tracker = make_stonesoup(kind, setting, config, scans)
@@ -337,7 +344,7 @@ def run_stonesoup(case: Case, kind: str, setting: Setting, config, budget: float
     ids: dict[str, int] = {}
     tracks: dict[float, list] = {}
     steps = []
-    for reports, (when, current) in zip(case.reports, tracker):
+    for reports, (when, current) in zip(case.plain_reports, tracker):
         steps.append(time.perf_counter() - feeder.handed[-1])
         if sum(steps) > budget:
             return None

@@ -10,11 +10,15 @@ computed only where at least ``n_d`` sensors of S(c) detect (the threshold test 
 the false-detection part, which would need every sensor's report). In the distributed form each
 cell is assigned to one sensor that covers it (here the nearest), which computes it from its
 own and its neighbours' reports; the paper has a sensor do so only when it itself reports a
-detection (``FusionConfig.owner_detects``). Cells whose likelihood was
-computed are clustered: take a seed cell, gather the remaining cells within the sensing radius
-of it, remove them, repeat; each cluster's likelihood-weighted centre of mass is one position
-report. The paper picks seeds at random; we take the most likely remaining cell, which is
-deterministic and puts the seed on the strongest evidence.
+detection (``FusionConfig.owner_detects``). The paper clusters the cells whose likelihood was
+computed: take a seed cell, gather the remaining cells within the sensing radius of it, remove
+them, repeat; each cluster's likelihood-weighted centre of mass is one position report. The
+paper picks seeds at random; we take the most likely remaining cell, which is deterministic and
+puts the seed on the strongest evidence.
+
+By default we do not cluster but fit targets to the scan by eq. (4) over all sensors, helped by
+where the tracks expect targets (:mod:`bintrack.target_fit`): clusters merge two people a little
+more than a sensing range apart and make satellites around one person.
 """
 
 from __future__ import annotations
@@ -30,10 +34,9 @@ from scipy.spatial import cKDTree
 from .errors import CommandError
 from .messages import Deployment, DiskSensor, PositionReport, PositionReports, SectorSensor, Transition
 from .sensing import reports_presence
+from .target_fit import MIN_VARIANCE_CELLS, Expectation, TargetFit
 
 DEFAULT_SCAN = 0.5  # s, when the sensors are event-driven (no sampling period)
-# The variance of a uniform position in a cell of side h is h²/12; a cluster of one cell gets it.
-_MIN_VARIANCE_CELLS = 1.0 / 12.0
 
 
 @dataclass(frozen=True)
@@ -53,8 +56,28 @@ class FusionConfig:
     which does not lose the cells of a sensor that missed the target (1 − pd of the time)"""
     full: bool = True
     """weight cells by eq. (4) in full (up to a common factor) rather than its detection part"""
-    clustering: Literal["paper", "explain"] = "explain"
-    """how cells become reports (see ``GridFusion.reports``)"""
+    clustering: Literal["paper", "explain", "fit"] = "fit"
+    """how a scan's detections become reports (see ``GridFusion.reports``)"""
+    min_gain: float = 3.0
+    """"fit": the least gain, nats of eq. (4)'s likelihood ratio, for which a new target is placed
+    (or one target is split in two)"""
+    expected_gain: float = 1.0
+    """"fit": the least support, nats, for a target placed where a track expects one"""
+    expected_sigmas: float = 3.0
+    """"fit": an expected target may sit within this many standard deviations of the prediction"""
+    split: bool = True
+    """"fit": try replacing each new target by two"""
+    shared: bool = True
+    """"fit": copy a report for an established track hidden in another track's blob"""
+    shared_speed: float = 0.5
+    """the least difference in velocity, units/s, between the hidden track and the report's"""
+    shared_age: int = 6
+    """reports both tracks must have taken before a copy is made"""
+    shared_gap: float = 1.0
+    """a copy is made when the hidden track's prediction is within this multiple of the
+    sensing range of the report"""
+    track_aided: bool = True
+    """the MCMCDA tracker passes its tracks' expectations to the "fit" fusion"""
     explained: float = 1.0
     """"explain": a report explains the detections of sensors within this multiple of their
     sensing range of it"""
@@ -73,6 +96,8 @@ class GridFusion:
             raise CommandError("fusion needs disk or sector sensors; this deployment has none")
         if config.cell is not None and not config.cell > 0:
             raise CommandError(f"fusion cell size must be positive, got {config.cell}")
+        if not config.min_gain >= 0:
+            raise CommandError(f"fusion min_gain must be at least 0 nats, got {config.min_gain}")
         if config.threshold < 1:
             raise CommandError(f"fusion threshold n_d must be at least 1, got {config.threshold}")
         self.config = config
@@ -89,8 +114,10 @@ class GridFusion:
             # i.e. a constant (no target anywhere) times ∏_{i∈S(c)} (p_i/q_i)^y ((1−p_i)/(1−q_i))^(1−y)
             # (clamped, so that ideal sensors, pd = 1 and pfa = 0, give large finite ratios)
             pd_c, pfa_c = np.clip(pd, 1e-9, 1 - 1e-9), np.clip(pfa, 1e-9, 1 - 1e-9)
-            self._log_hit_ratio = np.log(pd_c) - np.log(pfa_c)
-            self._log_miss_ratio = np.log1p(-pd_c) - np.log1p(-pfa_c)
+            self.log_hit_ratio = np.log(pd_c) - np.log(pfa_c)
+            """per sensor: log(pd/pfa), nats, the weight of a detection in eq. (4)"""
+            self.log_miss_ratio = np.log1p(-pd_c) - np.log1p(-pfa_c)
+            """per sensor: log((1 − pd)/(1 − pfa)), nats, the weight of a miss"""
         region = deployment.region
         h = config.cell if config.cell is not None else float(min(s.range for s in sensors)) / 8.0
         self.cell = h
@@ -122,12 +149,16 @@ class GridFusion:
         self.owner = owner[keep]
         """index of the sensor each cell is assigned to (the nearest that covers it)"""
         data = np.ones(len(rows))
-        self._cover = csr_matrix((data, (renumber[np.array(rows, dtype=int)], np.array(cols, dtype=int))),
-                                 shape=(keep.size, len(sensors)))
+        self.cover = csr_matrix((data, (renumber[np.array(rows, dtype=int)], np.array(cols, dtype=int))),
+                                shape=(keep.size, len(sensors)))
+        """cells × sensors, 1 where the sensor's disk covers the cell"""
         self._radius = ranges
         self._positions = positions
         self._sensor_tree = tree
-        self._cell_tree = cKDTree(self.cells)
+        self.cell_tree = cKDTree(self.cells)
+        self.cell_range = ranges[self.owner]
+        """per cell: the sensing range of the sensor it is assigned to, units"""
+        self._fit = TargetFit(self)
 
     def detection_likelihood(self, detecting: np.ndarray, full: bool = False,
                              active: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -143,7 +174,7 @@ class GridFusion:
         y = detecting.astype(float)
         if active is not None:
             y = y * active
-        counts = self._cover @ y
+        counts = self.cover @ y
         computed = counts >= self.config.threshold
         if self.config.owner_detects:
             computed &= y[self.owner] > 0
@@ -151,13 +182,13 @@ class GridFusion:
         if cells.size == 0:
             return cells, np.zeros(0)
         if full:
-            per_sensor = np.where(y > 0, self._log_hit_ratio, self._log_miss_ratio)
+            per_sensor = np.where(y > 0, self.log_hit_ratio, self.log_miss_ratio)
         else:
             per_sensor = np.where(y > 0, self._log_hit, self._log_miss)
         per_sensor = np.where(np.isfinite(per_sensor), per_sensor, -1e300)
         if active is not None:
             per_sensor = per_sensor * active
-        return cells, self._cover[cells] @ per_sensor
+        return cells, self.cover[cells] @ per_sensor
 
     def likelihood_map(self, detecting: np.ndarray, full: bool = False) -> np.ndarray:
         """Likelihood of every cell (0 where it is not computed), scaled to a maximum of 1, for plots."""
@@ -167,19 +198,23 @@ class GridFusion:
             out[cells] = np.exp(values - values.max())
         return out
 
-    def reports(self, detecting: np.ndarray) -> list[PositionReport]:
-        """Position reports of one scan, strongest first; covariance = likelihood-weighted spread
-        of the cluster's cells plus the cell quantization (h²/12), in units².
+    def reports(self, detecting: np.ndarray, expected: list[Expectation] | tuple = ()) -> list[PositionReport]:
+        """Position reports of one scan; covariances in units².
 
-        ``clustering="paper"`` (§III): seeds in order of likelihood, each gathering the remaining
-        computed cells within its sensing radius. ``"explain"``: after each cluster, the
-        detections of the sensors covering its centre are explained by it and the likelihood is
-        computed again without them, so that one target's detections make one report rather
-        than a report and satellites around it.
+        ``clustering="fit"`` (default): targets fitted to the detections by eq. (4) over every
+        sensor, using ``expected`` (the tracks' predictions, strongest first), see
+        :mod:`bintrack.target_fit`. ``"paper"`` (§III): seeds in order of likelihood, each
+        gathering the remaining computed cells within its sensing radius; a report is the
+        likelihood-weighted centre and spread of its cells plus the cell quantization (h²/12).
+        ``"explain"``: as "paper", but after each cluster the detections of the sensors covering
+        its centre are explained by it and the likelihood is computed again without them, so
+        that one target's detections make one report rather than a report and satellites.
         """
         if self.config.clustering == "paper":
             cells, log_l = self.detection_likelihood(detecting, self.config.full)
             return self._clusters(cells, log_l, limit=None)
+        if self.config.clustering == "fit":
+            return self._fit.reports(detecting, expected)
         active = np.ones(len(self.ids))
         reports: list[PositionReport] = []
         while True:
@@ -209,7 +244,7 @@ class GridFusion:
         for seed in cells[order]:
             if not free[seed]:
                 continue
-            members = np.asarray(self._cell_tree.query_ball_point(self.cells[seed], r=float(self._radius[self.owner[seed]])))
+            members = np.asarray(self.cell_tree.query_ball_point(self.cells[seed], r=float(self._radius[self.owner[seed]])))
             members = members[free[members]]
             free[members] = False
             w = weight[members]
@@ -217,7 +252,7 @@ class GridFusion:
             centre = (w[:, None] * self.cells[members]).sum(axis=0) / w_sum
             spread = self.cells[members] - centre
             cov = (w[:, None, None] * np.einsum("ni,nj->nij", spread, spread)).sum(axis=0) / w_sum
-            cov += np.eye(2) * _MIN_VARIANCE_CELLS * self.cell ** 2
+            cov += np.eye(2) * MIN_VARIANCE_CELLS * self.cell ** 2
             reports.append(PositionReport(x=float(centre[0]), y=float(centre[1]),
                                           cov=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
                                           weight=w_sum))
@@ -234,6 +269,14 @@ def scan_period(deployment: Deployment, config: FusionConfig) -> float:
         return config.scan
     periods = [s.period for s in deployment.sensors if getattr(s, "period", None)]
     return max(periods) if periods else DEFAULT_SCAN
+
+
+@dataclass(frozen=True)
+class Scan:
+    """Every sensor's status (``GridFusion.ids`` order, True = detecting) at event time ``t`` (s)."""
+
+    t: float
+    detecting: np.ndarray
 
 
 class ScanFusion:
@@ -253,7 +296,12 @@ class ScanFusion:
         self._next: int | None = None  # index of the next scan to emit
         self._last_t: float | None = None
 
-    def update(self, transition: Transition) -> list[PositionReports]:
+    def fuse(self, scan: Scan, expected: list[Expectation] | tuple = ()) -> PositionReports:
+        """The position reports of ``scan`` (``GridFusion.reports``), given where the tracks
+        expect targets (used by the "fit" fusion)."""
+        return PositionReports(t=scan.t, reports=self.grid.reports(scan.detecting, expected))
+
+    def update(self, transition: Transition) -> list[Scan]:
         """Apply ``transition`` after emitting the scans strictly before its time."""
         out = self.flush(math.nextafter(transition.t, -math.inf))
         i = self.grid.index.get(transition.sensor)
@@ -264,7 +312,7 @@ class ScanFusion:
         self._last_t = transition.t
         return out
 
-    def flush(self, t: float) -> list[PositionReports]:
+    def flush(self, t: float) -> list[Scan]:
         """Emit every scan at event time ≤ ``t`` (s); with t = ∞, up to the last transition's."""
         if self._next is None:
             return []
@@ -272,7 +320,7 @@ class ScanFusion:
             t = self.scan_of(self._last_t) * self.period
         out = []
         while (scan_t := round(self._next * self.period, 9)) <= t:
-            out.append(PositionReports(t=scan_t, reports=self.grid.reports(self._detecting)))
+            out.append(Scan(t=scan_t, detecting=self._detecting.copy()))
             self._next += 1
         return out
 

@@ -26,6 +26,10 @@ the track's filtered state becomes its *anchor*, from which the track continues 
 window, and whose identity it keeps. New tracks take the identity of the previous MAP's track
 they share most reports with, else a fresh one.
 
+Shared reports (copies the fusion makes for a track whose target hides in another's blob,
+:mod:`bintrack.target_fit`) are scored like any report, but no new track may begin with one.
+``expected`` tells the fusion where the MAP's tracks expect their targets in the next scan.
+
 The Kalman filter runs per axis (x and y independent: constant velocity with white-acceleration
 spectral density q, measurement variance the report covariance's diagonal), which keeps the
 chain's inner loop in scalar arithmetic; the report covariance's off-diagonal term is dropped.
@@ -39,6 +43,7 @@ from collections import deque
 from dataclasses import dataclass
 
 from .messages import PositionReports, Track, TrackSet
+from .target_fit import Expectation
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
@@ -64,7 +69,7 @@ class MCMCDAConfig:
     """probability that a present target yields a report in a scan"""
     false_alarm_rate: float = 3e-4
     """λ_f: false reports per unit area per scan"""
-    birth_rate: float = 1e-5
+    birth_rate: float = 1e-4
     """λ_b: new targets per unit area per scan"""
     termination: float = 0.05
     """p_z: probability that a target disappears between scans"""
@@ -76,9 +81,9 @@ class MCMCDAConfig:
     """d̄: consecutive scans a track may go unreported"""
     stop: float = 0.3
     """γ: probability that an extension proposal stops after each added report"""
-    min_reports: int = 3
+    min_reports: int = 2
     """reports a track needs (fixed and in the window) before it is published"""
-    coast: int = 2
+    coast: int = 1
     """scans a published track is predicted past its last report before it is dropped"""
 
     def __post_init__(self):
@@ -113,6 +118,7 @@ class _Report:
     y: float
     rx: float
     ry: float
+    shared: bool = False
 
 
 def _predict(state, dt: float, q: float):
@@ -169,7 +175,7 @@ class OnlineMCMCDA:
             self._next_report += 1
             extra = self.config.extra_variance
             self._reports[rid] = _Report(self._scan, scan.t, r.x, r.y, max(r.cov[0][0] + extra, 1e-6),
-                                         max(r.cov[1][1] + extra, 1e-6))
+                                         max(r.cov[1][1] + extra, 1e-6), r.shared)
             ids.append(rid)
         self._scans.append((self._scan, scan.t, ids))
         while len(self._scans) > self.config.window:
@@ -251,6 +257,9 @@ class OnlineMCMCDA:
         if cached is not None:
             return cached
         c = self.config
+        if not self._shared_ok(track):
+            self._cache[key] = -math.inf
+            return -math.inf
         sx, sy, last_scan, last_t, _, rest = self._start(track)
         # a new track's first report: a birth (λ_b, uniform position) that is detected
         score = self._log_lb + math.log(c.pd) - self._log_lf if track.anchor is None else 0.0
@@ -268,6 +277,10 @@ class OnlineMCMCDA:
             score += math.log(c.termination * (1.0 - alive ** m) / (1.0 - alive) + alive ** m)
         self._cache[key] = score
         return score
+
+    def _shared_ok(self, track: _Track) -> bool:
+        """A new track may not begin with a shared report (a copy is no evidence of a target)."""
+        return track.anchor is not None or not self._reports[track.reports[0]].shared
 
     # ------------------------------------------------------------------ gate
 
@@ -550,6 +563,26 @@ class OnlineMCMCDA:
             sx, sy, _ = self._advance(sx, sy, last_t, rep)
             last_t = rep.t
         return sx, sy, last_t, count + len(rest)
+
+    def expected(self, t: float) -> list[Expectation]:
+        """Where the MAP's live tracks (of two reports or more, unreported for fewer than d̄
+        scans) expect their targets at time ``t`` (s), the longest tracks first, for the fusion
+        of the next scan."""
+        c = self.config
+        out = []
+        for track in self._tracks:
+            end = self._end_of(track)
+            if end is None or self._scan + 1 - end[0] > c.max_misses:
+                continue
+            sx, sy, last_t, count = self._filtered(track)
+            if count < 2:
+                continue
+            sx = _predict(sx, t - last_t, c.process_noise)
+            sy = _predict(sy, t - last_t, c.process_noise)
+            out.append(Expectation(x=sx[0], y=sy[0], sigma=math.sqrt(max(sx[2], sy[2])), vx=sx[1], vy=sy[1],
+                                   reports=count, unreported=self._scan + 1 - end[0]))
+        out.sort(key=lambda e: -e.reports)
+        return out
 
     def _publish(self, t: float) -> TrackSet:
         c = self.config

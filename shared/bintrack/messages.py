@@ -261,6 +261,8 @@ class PositionReport(_Model):
         description="2×2 position covariance, units²"
     )
     weight: float = Field(1.0, ge=0, description="summed detection-likelihood of the cluster")
+    shared: bool = Field(False, description="a copy of another report, for a second target that a track "
+                         "expects there but whose detections are unresolved from that report's")
 
 
 class PositionReports(Message):

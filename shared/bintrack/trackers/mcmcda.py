@@ -1,5 +1,6 @@
 """The base station's multi-target tracker (paper 004): grid fusion of each scan's detections
-into position reports, then online MCMCDA over a sliding window of scans.
+into position reports, then online MCMCDA over a sliding window of scans. The fusion of a scan
+is told where the tracks of the previous scans expect their targets (``FusionConfig.track_aided``).
 
 Peer agents' ``LocalEstimate``s (arc, sector or a baseline) can join the fused reports, so that
 single-target estimates feed multi-target tracking: each becomes a report in the first scan at
@@ -10,7 +11,7 @@ arc of length R·arc) or, without an arc, R²/4.
 from __future__ import annotations
 
 
-from ..fusion import FusionConfig, ScanFusion
+from ..fusion import FusionConfig, Scan, ScanFusion
 from ..mcmcda import MCMCDAConfig, OnlineMCMCDA
 from ..messages import Deployment, LocalEstimate, Message, PositionReport, PositionReports, Transition
 from .base import Tracker
@@ -33,6 +34,7 @@ class MCMCDATracker:
                  config: MCMCDAConfig = MCMCDAConfig(), peer: Tracker | None = None):
         self.fusion = ScanFusion(deployment, fusion)
         self.mcmcda = OnlineMCMCDA(config, self.name)
+        self._track_aided = fusion.clustering == "fit" and fusion.track_aided
         self.peer = peer
         self._ranges = {s.id: s.range for s in deployment.sensors if hasattr(s, "range")}
         self._pending: dict[int, list[tuple[float, str, PositionReport]]] = {}
@@ -69,9 +71,11 @@ class MCMCDATracker:
             if isinstance(out, LocalEstimate):
                 self.add_estimate(out)
 
-    def _track(self, scans: list[PositionReports]) -> list[Message]:
+    def _track(self, scans: list[Scan]) -> list[Message]:
         out: list[Message] = []
-        for scan in scans:
+        for snapshot in scans:
+            expected = self.mcmcda.expected(snapshot.t) if self._track_aided else ()
+            scan = self.fusion.fuse(snapshot, expected)
             extra = sorted(self._pending.pop(self.fusion.scan_of(scan.t), []), key=lambda e: (e[0], e[1]))
             if extra:
                 scan = PositionReports(t=scan.t, reports=[*scan.reports, *(r for _, _, r in extra)])

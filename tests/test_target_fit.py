@@ -1,0 +1,87 @@
+"""The fitted fusion (bintrack.target_fit): targets fitted to a scan by eq. (4), helped by tracks."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bintrack.fusion import FusionConfig, GridFusion
+from bintrack.mcmcda import MCMCDAConfig, OnlineMCMCDA
+from bintrack.messages import PositionReport, PositionReports
+from bintrack.target_fit import Expectation
+
+from test_mcmcda import detecting_near, grid_deployment
+
+
+def near(report: PositionReport, x: float, y: float, within: float) -> bool:
+    return math.hypot(report.x - x, report.y - y) <= within
+
+
+def test_two_people_a_little_more_than_a_range_apart_are_two_reports_not_one_cluster():
+    deployment = grid_deployment()
+    people = [(17.0, 22.0), (27.0, 23.0)]  # 10 m apart, 8 m disks: one blob of detections
+    detecting = detecting_near(GridFusion(deployment), deployment, people)
+    fitted = GridFusion(deployment).reports(detecting)
+    assert len(fitted) == 2
+    for x, y in people:
+        assert any(near(r, x, y, 3.0) for r in fitted)
+    clustered = GridFusion(deployment, FusionConfig(clustering="explain")).reports(detecting)
+    assert not (len(clustered) == 2 and all(any(near(r, x, y, 3.0) for r in clustered) for x, y in people))
+
+
+def test_a_track_expecting_its_target_lowers_the_bar_for_weak_evidence():
+    deployment = grid_deployment()
+    fusion = GridFusion(deployment)
+    detecting = np.zeros(len(fusion.ids), dtype=bool)
+    for sensor in ("n0404", "n0405", "n0505"):  # three of the ~8 sensors covering (22.5, 23.5)
+        detecting[fusion.index[sensor]] = True
+    assert fusion.reports(detecting) == []  # 3 hits and 5 misses: 2.2 nats, below min_gain
+    expected = [Expectation(x=22.5, y=23.5, sigma=1.5, vx=1.0, vy=0.0, reports=10, unreported=1)]
+    (report,) = fusion.reports(detecting, expected)
+    assert near(report, 22.5, 23.5, 2.0) and not report.shared
+    # the same two detections far from where the track expects its target support nothing
+    away = [Expectation(x=5.0, y=40.0, sigma=1.5, vx=1.0, vy=0.0, reports=10, unreported=1)]
+    assert fusion.reports(detecting, away) == []
+
+
+def test_no_report_for_a_track_whose_target_has_left_the_sensors():
+    deployment = grid_deployment()
+    fusion = GridFusion(deployment)
+    silent = np.zeros(len(fusion.ids), dtype=bool)
+    leaving = [Expectation(x=49.0, y=20.0, sigma=2.0, vx=1.2, vy=0.0, reports=30, unreported=1)]
+    assert fusion.reports(silent, leaving) == []
+
+
+def crossing(vx_hidden: float, reports: int = 20) -> list[Expectation]:
+    """Track 0 owns the blob at (22.5, 22.5); track 1 expects its target 2 m away, hidden in it."""
+    return [Expectation(x=22.5, y=22.5, sigma=1.0, vx=1.2, vy=0.0, reports=reports, unreported=1),
+            Expectation(x=23.5, y=24.2, sigma=1.0, vx=vx_hidden, vy=-1.2, reports=reports, unreported=1)]
+
+
+def test_a_track_hidden_in_another_tracks_blob_gets_a_loose_shared_copy():
+    deployment = grid_deployment()
+    fusion = GridFusion(deployment)
+    detecting = detecting_near(fusion, deployment, [(22.5, 22.5), (23.5, 24.2)])
+    reports = fusion.reports(detecting, crossing(vx_hidden=-1.2))
+    own = [r for r in reports if not r.shared]
+    copies = [r for r in reports if r.shared]
+    assert len(own) == 1 and len(copies) == 1
+    assert (copies[0].x, copies[0].y) == (own[0].x, own[0].y)
+    assert copies[0].cov[0][0] >= own[0].cov[0][0] + 16.0  # (R/2)² looser: no pull onto the other
+    # two tracks on one person move alike: no copy; nor for tracks too young to trust
+    assert not any(r.shared for r in fusion.reports(detecting, crossing(vx_hidden=1.2)[:1] + [
+        Expectation(x=23.5, y=24.2, sigma=1.0, vx=1.2, vy=0.0, reports=20, unreported=1)]))
+    assert not any(r.shared for r in fusion.reports(detecting, crossing(vx_hidden=-1.2, reports=3)))
+    assert not any(r.shared for r in GridFusion(deployment, FusionConfig(shared=False)).reports(
+        detecting, crossing(vx_hidden=-1.2)))
+
+
+def test_a_new_track_cannot_begin_with_a_shared_copy():
+    copy = PositionReport(x=10.0, y=10.0, cov=((20.0, 0.0), (0.0, 20.0)), weight=0.0, shared=True)
+    tracker = OnlineMCMCDA(MCMCDAConfig(seed=0, n_mc=300))
+    for k in range(8):  # a shared copy, then a real report moving on at 1 m/s, every scan
+        real = PositionReport(x=10.0 + 0.5 * k, y=12.0, cov=((1.0, 0.0), (0.0, 1.0)))
+        tracker.step(PositionReports(t=0.5 * k, reports=[copy, real]))
+    starts = [tracker._reports[t.reports[0]] for t in tracker._tracks if t.anchor is None and t.reports]
+    assert starts and not any(rep.shared for rep in starts)
