@@ -20,7 +20,7 @@ test: $(STAMP)
 	$(PY) -m pytest -q
 
 # Our MCMCDA against Stone Soup's GNN and JPDA (issue 6): needs the optional extra `bench`
-# (Stone Soup), which only this target installs. 2–5 min on 2 cores; `make bench BENCH_ARGS=--quick`
+# (Stone Soup), which only this target installs. 3–6 min on 2 cores; `make bench BENCH_ARGS=--quick`
 # tries one Stone Soup setting instead of tuning (about 1 min).
 BENCH_STAMP := $(VENV)/.installed-bench
 BENCH_ARGS ?=

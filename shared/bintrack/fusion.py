@@ -34,7 +34,7 @@ from scipy.spatial import cKDTree
 from .errors import CommandError
 from .messages import Deployment, DiskSensor, PositionReport, PositionReports, SectorSensor, Transition
 from .sensing import reports_presence
-from .target_fit import MIN_VARIANCE_CELLS, Expectation, TargetFit
+from .target_fit import Expectation, TargetFit, weighted_report
 
 DEFAULT_SCAN = 0.5  # s, when the sensors are event-driven (no sampling period)
 
@@ -248,14 +248,7 @@ class GridFusion:
             members = members[free[members]]
             free[members] = False
             w = weight[members]
-            w_sum = float(w.sum())
-            centre = (w[:, None] * self.cells[members]).sum(axis=0) / w_sum
-            spread = self.cells[members] - centre
-            cov = (w[:, None, None] * np.einsum("ni,nj->nij", spread, spread)).sum(axis=0) / w_sum
-            cov += np.eye(2) * MIN_VARIANCE_CELLS * self.cell ** 2
-            reports.append(PositionReport(x=float(centre[0]), y=float(centre[1]),
-                                          cov=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
-                                          weight=w_sum))
+            reports.append(weighted_report(self.cells[members], w, self.cell, weight=float(w.sum())))
             if limit is not None and len(reports) >= limit:
                 break
         return reports

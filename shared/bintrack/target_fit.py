@@ -60,8 +60,8 @@ from .messages import PositionReport
 if TYPE_CHECKING:
     from .fusion import GridFusion
 
-MIN_VARIANCE_CELLS = 1.0 / 12.0
-"""a report's least variance per axis, in cells² (a uniform position in a cell of side h: h²/12)"""
+# A report's least variance per axis, in cells²: a uniform position in a cell of side h has h²/12.
+_MIN_VARIANCE_CELLS = 1.0 / 12.0
 # Starting offsets of a split, as angles of the line through the two new targets.
 _SPLIT_ANGLES = np.arange(4) * np.pi / 4
 _MAX_SWEEPS = 10
@@ -93,6 +93,19 @@ class _Target:
     log_prior: np.ndarray | None = None  # log π over ``gate``
 
 
+def weighted_report(cells: np.ndarray, w: np.ndarray, cell: float, weight: float) -> PositionReport:
+    """A position report from grid cells (n × 2, units) weighted by ``w``: their weighted mean
+    and covariance plus the quantization of a cell of side ``cell`` (h²/12 per axis), units²."""
+    w_sum = float(w.sum())
+    centre = (w[:, None] * cells).sum(axis=0) / w_sum
+    spread = cells - centre
+    cov = (w[:, None, None] * np.einsum("ni,nj->nij", spread, spread)).sum(axis=0) / w_sum
+    cov += np.eye(2) * _MIN_VARIANCE_CELLS * cell ** 2
+    return PositionReport(x=float(centre[0]), y=float(centre[1]),
+                          cov=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
+                          weight=weight)
+
+
 class TargetFit:
     """Fits targets to one scan's detections on ``grid`` (see the module docstring)."""
 
@@ -111,7 +124,10 @@ class TargetFit:
             scan.place_expected(e, expectation)
         if scan.targets:
             scan.settle()
-        while scan.place_new():
+        # each new target newly explains n_d detections when placed: a bound that ends the loop
+        # even where settling hands detections back and forth
+        limit = len(scan.targets) + int(scan.hits.sum()) // self.config.threshold
+        while len(scan.targets) < limit and scan.place_new():
             scan.settle()
         if self.config.split:
             for _ in range(len(scan.targets) + 1):
@@ -243,15 +259,8 @@ class _Scan:
         gain, _ = self.gains(self._others(k))
         near = np.asarray(self.grid.cell_tree.query_ball_point(self.grid.cells[target.cell],
                                                                r=float(self.grid.cell_range[target.cell])))
-        w = np.exp(gain[near] - gain[target.cell])
-        w_sum = float(w.sum())
-        centre = (w[:, None] * self.grid.cells[near]).sum(axis=0) / w_sum
-        spread = self.grid.cells[near] - centre
-        cov = (w[:, None, None] * np.einsum("ni,nj->nij", spread, spread)).sum(axis=0) / w_sum
-        cov += np.eye(2) * MIN_VARIANCE_CELLS * self.grid.cell ** 2
-        return PositionReport(x=float(centre[0]), y=float(centre[1]),
-                              cov=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
-                              weight=max(float(gain[target.cell]), 0.0))
+        return weighted_report(self.grid.cells[near], np.exp(gain[near] - gain[target.cell]), self.grid.cell,
+                               weight=max(float(gain[target.cell]), 0.0))
 
     def shared_copies(self, reports: list[PositionReport], expected) -> list[PositionReport]:
         """Copies of reports for established tracks hidden in another track's blob (module docstring, 6)."""
