@@ -79,7 +79,7 @@ def test_a_track_hidden_in_another_tracks_blob_gets_a_loose_shared_copy():
 
 def test_a_new_track_cannot_begin_with_a_shared_copy():
     copy = PositionReport(x=10.0, y=10.0, cov=((20.0, 0.0), (0.0, 20.0)), weight=0.0, shared=True)
-    tracker = OnlineMCMCDA(MCMCDAConfig(seed=0, n_mc=300))
+    tracker = OnlineMCMCDA(MCMCDAConfig(seed=0, n_mc=300, window=10))  # all 8 scans stay in the window
     for k in range(8):  # a shared copy, then a real report moving on at 1 m/s, every scan
         real = PositionReport(x=10.0 + 0.5 * k, y=12.0, cov=((1.0, 0.0), (0.0, 1.0)))
         tracker.step(PositionReports(t=0.5 * k, reports=[copy, real]))

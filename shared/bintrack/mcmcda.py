@@ -52,7 +52,7 @@ _LOG_2PI = math.log(2.0 * math.pi)
 class MCMCDAConfig:
     """Parameters of the model (eq. 3, Kalman filter) and of the online sampler."""
 
-    window: int = 10
+    window: int = 5
     """sliding-window length, scans"""
     n_mc: int = 500
     """Metropolis–Hastings iterations per scan"""
