@@ -565,9 +565,9 @@ class OnlineMCMCDA:
         return sx, sy, last_t, count + len(rest)
 
     def expected(self, t: float) -> list[Expectation]:
-        """Where the MAP's live tracks (of two reports or more, unreported for fewer than d̄
-        scans) expect their targets at time ``t`` (s), the longest tracks first, for the fusion
-        of the next scan."""
+        """Where the MAP's live tracks (of two reports or more, unreported for at most d̄ scans
+        by then) expect their targets at time ``t`` (s), the longest tracks first, for the
+        fusion of the next scan."""
         c = self.config
         out = []
         for track in self._tracks:

@@ -260,7 +260,8 @@ class PositionReport(_Model):
     cov: tuple[tuple[float, float], tuple[float, float]] = Field(
         description="2×2 position covariance, units²"
     )
-    weight: float = Field(1.0, ge=0, description="summed detection-likelihood of the cluster")
+    weight: float = Field(1.0, ge=0, description="the report's evidence: its cluster's summed cell likelihood "
+                          "(clustering fusion) or its gain, nats of eq. 4 (fitted fusion); 0 for a shared copy")
     shared: bool = Field(False, description="a copy of another report, for a second target that a track "
                          "expects there but whose detections are unresolved from that report's")
 
