@@ -244,7 +244,7 @@ class GridFusion:
         for seed in cells[order]:
             if not free[seed]:
                 continue
-            members = np.asarray(self.cell_tree.query_ball_point(self.cells[seed], r=float(self._radius[self.owner[seed]])))
+            members = np.asarray(self.cell_tree.query_ball_point(self.cells[seed], r=float(self.cell_range[seed])))
             members = members[free[members]]
             free[members] = False
             w = weight[members]

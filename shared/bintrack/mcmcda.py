@@ -483,25 +483,31 @@ class OnlineMCMCDA:
         reverse = -math.log(len(tracks)) - math.log(len(new.reports) - lo)
         return [i], [new], self._ratio_k(len(tracks), len(tracks), -math.log(len(tracks)) + logq, reverse)
 
-    def _reduction(self, tracks, free):
+    def _cut(self, tracks, keep: int):
+        """A random track and a random cut in its window reports, leaving at least ``keep`` of
+        them before the cut when it has no anchor: (index, track, lowest cut, cut), or None."""
         i = self._rng.randrange(len(tracks))
         t = tracks[i]
-        lo = 0 if t.anchor is not None else 2
+        lo = 0 if t.anchor is not None else keep
         if len(t.reports) <= lo:
             return None
-        r = self._rng.randrange(lo, len(t.reports))
+        return i, t, lo, self._rng.randrange(lo, len(t.reports))
+
+    def _reduction(self, tracks, free):
+        cut = self._cut(tracks, keep=2)
+        if cut is None:
+            return None
+        i, t, lo, r = cut
         new = _Track(t.reports[:r], t.anchor, t.label)
         freed = free | set(t.reports[r:])
         reverse = -math.log(len(tracks)) + self._path_logq(self._end_of(new), list(t.reports[r:]), freed, True)
         return [i], [new], self._ratio_k(len(tracks), len(tracks), -math.log(len(tracks)) - math.log(len(t.reports) - lo), reverse)
 
     def _update(self, tracks, free):
-        i = self._rng.randrange(len(tracks))
-        t = tracks[i]
-        lo = 0 if t.anchor is not None else 1
-        if len(t.reports) <= lo:
+        cut = self._cut(tracks, keep=1)
+        if cut is None:
             return None
-        r = self._rng.randrange(lo, len(t.reports))
+        i, t, _, r = cut
         keep = _Track(t.reports[:r], t.anchor, t.label)
         end = self._end_of(keep)
         freed = free | set(t.reports[r:])
