@@ -32,7 +32,8 @@ the first person's entry to the last one's exit (as ``benchmarks/paper004.py``),
 scans where a tracker reports no track (all targets then count as missed),
 GOSPA with c = 10 m, p = 2, α = 2 between the tracker's tracks and the targets existing at
 that time; its localisation / missed / false parts (m²); mean |tracks − targets|; identity
-switches (a target's assigned track id changing). Time per scan is the wall time of the
+switches (CLEAR MOT mismatches: a target's track id changing, where a target keeps its track
+while that track stays within c). Time per scan is the wall time of the
 tracking step alone (ours: ``OnlineMCMCDA.step`` replayed on the same reports; Stone Soup:
 one tracker step), and for ours also fusion + MCMCDA (the whole tracker, events read
 included), as a fraction of the 0.5 s scan period. Also writes a PNG of GOSPA and the number

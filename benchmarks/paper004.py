@@ -7,7 +7,7 @@ and prints, over the scans from the first person's entry to the last one's exit:
 of scans with the right number of tracks, in all those scans and in the *settled* ones (people
 inside: no one entered or left in the last ``SETTLE`` s, since a track needs two reports to be
 born and one to be let go), the longest life of a false track (consecutive scans in which a
-track is matched to no person within c = 10 m), identity switches, mean GOSPA (c = 10 m, p = 2,
+track is matched to no person within c = 10 m), identity switches (CLEAR MOT, ``metrics.multi_target_scores``), mean GOSPA (c = 10 m, p = 2,
 α = 2) and the time per scan. The paper reports, for one to three people, the right number of
 targets, crossing people disambiguated and no spurious track. Each dataset runs with our
 default fusion ("fit": targets fitted to each scan by eq. (4), helped by the tracks,

@@ -183,6 +183,27 @@ def test_swapped_tracks_at_a_crossing_count_two_switches_and_extra_tracks_count(
     assert multi_target_scores([TrackRow(0, 1, 0, 0)], late, c=5).scans[0].n_targets == 0
 
 
+def test_tracks_that_keep_their_people_through_a_close_pass_count_no_switch():
+    # a walks (0,0) → (10,10), b walks (0,10) → (10,0); they meet at (5,5) at t = 5
+    paths = truth_paths(straight("a", 0, 10, (0, 0), (10, 10), 10) + straight("b", 0, 10, (0, 10), (10, 0), 10))
+    rows = []
+    for t in range(11):
+        a, b = paths["a"].position(t), paths["b"].position(t)
+        if t == 4:
+            # each track is 1.1 m from its own person and 0.9 m from the other: the optimal
+            # assignment of this scan alone swaps them
+            rows += [TrackRow(t, 1, 4.0, 5.1), TrackRow(t, 2, 4.0, 4.9)]
+        else:
+            rows += [TrackRow(t, 1, a[0], a[1]), TrackRow(t, 2, b[0], b[1])]
+    scores = multi_target_scores(rows, paths, c=5)
+    assert scores.scans[4].gospa.pairs == ((0, 1), (1, 0))
+    assert scores.identity_switches == 0
+    # the same tracks traded between the people for good are two switches, once a kept pair
+    # is no longer within c
+    traded = [TrackRow(r.t, 3 - r.track if r.t >= 6 else r.track, r.x, r.y) for r in rows]
+    assert multi_target_scores(traded, paths, c=5).identity_switches == 2
+
+
 # --------------------------------------------------------------------------- line-sensor objects
 
 
