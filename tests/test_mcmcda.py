@@ -156,6 +156,25 @@ def test_mcmcda_rejects_pure_clutter():
     assert sum(lives.values()) <= 60 // 10
 
 
+@pytest.mark.parametrize("jump", [8.0, 9.0])
+def test_a_person_seen_again_aside_after_a_missed_scan_keeps_their_identity(jump):
+    # one person walks along y = 30 at 1 m/s, goes unreported for a scan, and is then reported
+    # `jump` m aside: the chain often explains the new reports as a new track for a while
+    # before it joins them to the old one, or leaves the old one ended; either way the person
+    # is published under one identity
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        tracker = OnlineMCMCDA(MCMCDAConfig(seed=0))
+        identities = set()
+        for k in range(40):
+            t = 0.5 * k
+            reports = [] if k == 20 else [PositionReport(x=10 + t + rng.normal(0, 1),
+                                                         y=30 + (jump if k > 20 else 0) + rng.normal(0, 1),
+                                                         cov=((1.0, 0.0), (0.0, 1.0)))]
+            identities |= {tr.track for tr in tracker.step(PositionReports(t=t, reports=reports)).tracks}
+        assert identities == {1}, f"seed {seed}"
+
+
 def test_mcmcda_is_deterministic_given_the_seed():
     _, scans = constant_velocity_reports(seed=4, scans=40)
     first, again, other = (OnlineMCMCDA(MCMCDAConfig(seed=seed)) for seed in (7, 7, 8))

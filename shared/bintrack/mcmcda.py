@@ -23,8 +23,17 @@ extension stops because no candidate lies in the gate is neglected (it is small 
 Online (Oh et al. §IV-C): each scan the window slides; the chain starts from the previous MAP
 with the new reports as false alarms. Reports that leave the window are fixed with their track:
 the track's filtered state becomes its *anchor*, from which the track continues inside the
-window, and whose identity it keeps. New tracks take the identity of the previous MAP's track
-they share most reports with, else a fresh one.
+window, and whose identity it keeps.
+
+Identities (ours; Oh et al. leave output labels open). A track without an anchor takes the
+identity that most of its reports were last published under, else a fresh one when it is first
+published. The chain often re-explains a target's last few reports as a new track while the old
+one stays in the MAP, unreported; a scan or two later it joins them again. So a track without an
+identity does not get published while a track with one, unreported for more than ``coast`` and
+at most d̄ scans, could be its target: the newcomer is within ``gate_sigmas`` σ of where the old
+track predicts it (σ² the two position variances summed), or its first report lies in the old
+track's gate. The old track is shown instead, predicted. If it stays unreported for over d̄ scans
+it can no longer continue, and the newcomer inherits its identity.
 
 Shared reports (copies the fusion makes for a track whose target hides in another's blob,
 :mod:`bintrack.target_fit`) are scored like any report, but no new track may begin with one.
@@ -40,7 +49,7 @@ from __future__ import annotations
 import math
 import random
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from .messages import PositionReports, Track, TrackSet
 from .target_fit import Expectation
@@ -158,6 +167,7 @@ class OnlineMCMCDA:
         self._next_report = 0
         self._scan = -1
         self._tracks: list[_Track] = []  # the current MAP
+        self._owner: dict[int, int] = {}  # report → identity of the last labelled MAP track holding it
         self._next_identity = 1
         self._log_lf = math.log(config.false_alarm_rate)
         self._log_lb = math.log(config.birth_rate)
@@ -182,10 +192,13 @@ class OnlineMCMCDA:
             self._fix_oldest()
         self._expire_anchors()
         self._by_scan = {k: ids for k, _, ids in self._scans}
-        previous = [(_Track(t.reports, t.anchor, t.label)) for t in self._tracks]
         self._run_chain()
-        self._label(previous)
-        return self._publish(scan.t)
+        self._label()
+        published = self._publish(scan.t)
+        for track in self._tracks:
+            if track.label is not None:
+                self._owner.update(dict.fromkeys(track.reports, track.label))
+        return published
 
     # ------------------------------------------------------------------ window
 
@@ -210,6 +223,7 @@ class OnlineMCMCDA:
             track.reports = tuple(r for r in track.reports if r != rid)
         for rid in ids:
             del self._reports[rid]
+            self._owner.pop(rid, None)
 
     def _expire_anchors(self) -> None:
         keep = []
@@ -539,28 +553,31 @@ class OnlineMCMCDA:
 
     # ------------------------------------------------------------------ output
 
-    def _label(self, previous: list[_Track]) -> None:
-        """Give each MAP track the identity of the previous MAP track it shares most reports with."""
-        owner = {}
-        for p in previous:
-            for r in p.reports:
-                owner[r] = p.label
-        taken = set()
-        for t in sorted(self._tracks, key=lambda t: (t.anchor is None, t.reports)):
+    def _label(self) -> None:
+        """Give each MAP track without an anchor the identity most of its reports last had. An
+        identity held by a track that can no longer be extended (unreported for over d̄ scans)
+        passes to such a track; the old holder gets an identity nobody has seen."""
+        c = self.config
+        holders = {}
+        for t in self._tracks:
             if t.anchor is not None:
                 t.label = t.anchor.identity
-                taken.add(t.label)
+                holders[t.label] = t
+        taken = {label for label, t in holders.items() if self._scan - self._end_of(t)[0] <= c.max_misses}
         for t in sorted((t for t in self._tracks if t.anchor is None), key=lambda t: t.reports):
             votes: dict[int, int] = {}
             for r in t.reports:
-                label = owner.get(r)
+                label = self._owner.get(r)
                 if label is not None and label not in taken:
                     votes[label] = votes.get(label, 0) + 1
-            if votes:
-                t.label = max(sorted(votes), key=votes.get)
-                taken.add(t.label)
-            else:
-                t.label = None
+            t.label = max(sorted(votes), key=votes.get) if votes else None
+            if t.label is None:
+                continue
+            taken.add(t.label)
+            dead = holders.pop(t.label, None)
+            if dead is not None:
+                dead.anchor = replace(dead.anchor, identity=self._new_identity())
+                dead.label = dead.anchor.identity
 
     def _filtered(self, track: _Track):
         """(state x, state y, time of the last report, reports in all) of ``track``."""
@@ -592,17 +609,35 @@ class OnlineMCMCDA:
 
     def _publish(self, t: float) -> TrackSet:
         c = self.config
-        out = []
+        shown, hidden = [], []
         for track in self._tracks:
             end = self._end_of(track)
-            if end is None or self._scan - end[0] > c.coast:
+            if end is None or self._scan - end[0] > c.max_misses:
                 continue
             sx, sy, last_t, count = self._filtered(track)
             if count < c.min_reports:
                 continue
+            sx, sy = _predict(sx, t - last_t, c.process_noise), _predict(sy, t - last_t, c.process_noise)
+            if self._scan - end[0] <= c.coast:
+                shown.append((track, sx, sy))
+            elif track.label is not None:
+                hidden.append((track, sx, sy))
+        for n, (track, sx, sy) in enumerate(shown):
+            if track.label is not None:
+                continue
+            for h, (old, ox, oy) in enumerate(hidden):
+                reach = c.gate_sigmas * math.sqrt(max(ox[2], oy[2]) + max(sx[2], sy[2]))
+                if ((sx[0] - ox[0]) ** 2 + (sy[0] - oy[0]) ** 2 <= reach * reach
+                        or self._follows(*self._end_of(old), track.reports[0])):
+                    # the newcomer is most likely the hidden track's target: show that track,
+                    # and let the newcomer inherit its identity if it never comes back (_label)
+                    shown[n] = hidden.pop(h)
+                    self._owner.update(dict.fromkeys(track.reports, old.label))
+                    break
+        out = []
+        for track, sx, sy in shown:
             if track.label is None:
                 track.label = self._new_identity()
-            dt = t - last_t
-            out.append(Track(track=track.label, x=sx[0] + sx[1] * dt, y=sy[0] + sy[1] * dt, vx=sx[1], vy=sy[1]))
+            out.append(Track(track=track.label, x=sx[0], y=sy[0], vx=sx[1], vy=sy[1]))
         out.sort(key=lambda tr: tr.track)
         return TrackSet(t=t, tracker=self.name, tracks=out)
