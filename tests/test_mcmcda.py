@@ -60,9 +60,11 @@ def test_fewer_detections_than_the_threshold_give_no_report():
     assert len(GridFusion(deployment, FusionConfig(threshold=2, clustering="explain")).reports(y)) == 1
 
 
-def test_fit_needs_a_gain_of_at_least_zero():
+def test_fit_needs_a_gain_and_an_edge_margin_of_at_least_zero():
     with pytest.raises(CommandError, match="min_gain"):
         GridFusion(grid_deployment(), FusionConfig(min_gain=-1.0))
+    with pytest.raises(CommandError, match="shared_edge"):
+        GridFusion(grid_deployment(), FusionConfig(shared_edge=float("nan")))
 
 
 def test_with_the_papers_trigger_a_cell_is_computed_only_when_its_owner_detects():

@@ -8,7 +8,7 @@ import numpy as np
 
 from bintrack.fusion import FusionConfig, GridFusion
 from bintrack.mcmcda import MCMCDAConfig, OnlineMCMCDA
-from bintrack.messages import PositionReport, PositionReports
+from bintrack.messages import Deployment, DiskSensor, PositionReport, PositionReports, Region
 from bintrack.target_fit import Expectation
 
 from test_mcmcda import detecting_near, grid_deployment
@@ -53,10 +53,10 @@ def test_no_report_for_a_track_whose_target_has_left_the_sensors():
     assert fusion.reports(silent, leaving) == []
 
 
-def crossing(vx_hidden: float, reports: int = 20) -> list[Expectation]:
-    """Track 0 owns the blob at (22.5, 22.5); track 1 expects its target 2 m away, hidden in it."""
-    return [Expectation(x=22.5, y=22.5, sigma=1.0, vx=1.2, vy=0.0, reports=reports, unreported=1),
-            Expectation(x=23.5, y=24.2, sigma=1.0, vx=vx_hidden, vy=-1.2, reports=reports, unreported=1)]
+def crossing(vx_hidden: float, reports: int = 20, x: float = 22.5) -> list[Expectation]:
+    """Track 0 owns the blob at (x, 22.5); track 1 expects its target 2 m away, hidden in it."""
+    return [Expectation(x=x, y=22.5, sigma=1.0, vx=1.2, vy=0.0, reports=reports, unreported=1),
+            Expectation(x=x + 1.0, y=24.2, sigma=1.0, vx=vx_hidden, vy=-1.2, reports=reports, unreported=1)]
 
 
 def test_a_track_hidden_in_another_tracks_blob_gets_a_loose_shared_copy():
@@ -75,6 +75,21 @@ def test_a_track_hidden_in_another_tracks_blob_gets_a_loose_shared_copy():
     assert not any(r.shared for r in fusion.reports(detecting, crossing(vx_hidden=-1.2, reports=3)))
     assert not any(r.shared for r in GridFusion(deployment, FusionConfig(shared=False)).reports(
         detecting, crossing(vx_hidden=-1.2)))
+
+
+def test_no_shared_copy_near_the_edge_of_the_sensor_field_where_people_leave():
+    deployment = grid_deployment()  # sensors on 0..45 m in x and y
+    fusion = GridFusion(deployment)
+    assert fusion.depth(22.5, 22.5) == 22.5 and fusion.depth(0.0, 30.0) == 0.0 and fusion.depth(-3.0, 30.0) == -3.0
+    at_edge = crossing(vx_hidden=-1.2, x=3.0)  # the hidden track's prediction is 4 m inside
+    detecting = detecting_near(fusion, deployment, [(3.0, 22.5), (4.0, 24.2)])
+    assert [r.shared for r in fusion.reports(detecting, at_edge)] == [False]
+    nearer = GridFusion(deployment, FusionConfig(shared_edge=0.25))  # 2 m of the 8 m range
+    assert [r.shared for r in nearer.reports(detecting, at_edge)] == [False, True]
+    line = Deployment(name="line", units="m", region=Region(xmin=-5, ymin=-5, xmax=50, ymax=5),
+                      sensors=[DiskSensor(id=f"s{i}", x=5.0 * i, y=0.0, range=8.0, pd=0.7, pfa=0.05, period=0.5)
+                               for i in range(10)])
+    assert GridFusion(line).depth(20.0, 0.0) == math.inf  # a line of sensors encloses no area
 
 
 def test_a_new_track_cannot_begin_with_a_shared_copy():

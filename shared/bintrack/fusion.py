@@ -29,7 +29,7 @@ from typing import Literal
 
 import numpy as np
 from scipy.sparse import csr_matrix
-from scipy.spatial import cKDTree
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from .errors import CommandError
 from .messages import Deployment, DiskSensor, PositionReport, PositionReports, SectorSensor, Transition
@@ -76,6 +76,10 @@ class FusionConfig:
     shared_gap: float = 1.0
     """a copy is made when the hidden track's prediction is within this multiple of the
     sensing range of the report"""
+    shared_edge: float = 1.0
+    """no copy for a track predicted within this multiple of the sensing range of the edge of
+    the sensor field (the sensors' convex hull): there a person with no support of their own
+    has as likely left"""
     track_aided: bool = True
     """the MCMCDA tracker passes its tracks' expectations to the "fit" fusion"""
     explained: float = 1.0
@@ -98,6 +102,8 @@ class GridFusion:
             raise CommandError(f"fusion cell size must be positive, got {config.cell}")
         if not config.min_gain >= 0:
             raise CommandError(f"fusion min_gain must be at least 0 nats, got {config.min_gain}")
+        if not config.shared_edge >= 0:
+            raise CommandError(f"fusion shared_edge must be at least 0 sensing ranges, got {config.shared_edge}")
         if config.threshold < 1:
             raise CommandError(f"fusion threshold n_d must be at least 1, got {config.threshold}")
         self.config = config
@@ -156,9 +162,21 @@ class GridFusion:
         self._positions = positions
         self._sensor_tree = tree
         self.cell_tree = cKDTree(self.cells)
+        try:
+            self._hull = ConvexHull(positions).equations
+        except QhullError:  # fewer than three sensors, or all on one line: no area to be inside
+            self._hull = None
         self.cell_range = ranges[self.owner]
         """per cell: the sensing range of the sensor it is assigned to, units"""
         self._fit = TargetFit(self)
+
+    def depth(self, x: float, y: float) -> float:
+        """How far (units) the point (x, y) lies inside the sensor field, the convex hull of the
+        sensors: the distance to its edge, negative outside; infinite when the sensors enclose
+        no area."""
+        if self._hull is None:
+            return math.inf
+        return -float(np.max(self._hull[:, :2] @ (x, y) + self._hull[:, 2]))
 
     def detection_likelihood(self, detecting: np.ndarray, full: bool = False,
                              active: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

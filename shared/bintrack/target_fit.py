@@ -34,7 +34,11 @@ a target adds the weights of the sensors it covers that no other target covers (
    - the report was placed for another track;
    - the two tracks have moved differently (by at least ``shared_speed``);
    - both are established (at least ``shared_age`` reports);
-   - it was reported in the previous scan.
+   - it was reported in the previous scan;
+   - its prediction is at least ``shared_edge`` sensing ranges inside the sensor field (the
+     sensors' convex hull). Nearer the edge, a person with no support of their own has as
+     likely left, and a copy would keep a departed person's track alive on someone else's
+     detections.
 
    Two people passing each other make one blob of detections, and binary sensors cannot
    resolve it. The copy keeps the hidden person's track, and its count, alive. The copy has a
@@ -281,7 +285,8 @@ class _Scan:
             reach = float(self.grid.cell_range[self.targets[k].cell])
             other = expected[owner_of[k]]
             if (gaps[k] > c.shared_gap * reach or other.reports < c.shared_age
-                    or math.hypot(hidden.vx - other.vx, hidden.vy - other.vy) < c.shared_speed):
+                    or math.hypot(hidden.vx - other.vx, hidden.vy - other.vy) < c.shared_speed
+                    or self.grid.depth(hidden.x, hidden.y) < c.shared_edge * reach):
                 continue
             copied.add(k)
             r = reports[k]
