@@ -7,9 +7,10 @@ and prints, over the scans from the first person's entry to the last one's exit:
 of scans with the right number of tracks, in all those scans and in the *settled* ones (people
 inside: no one entered or left in the last ``SETTLE`` s, since a track needs two reports to be
 born and one to be let go), the longest life of a false track (consecutive scans in which a
-track is matched to no person within c = 10 m), identity switches (CLEAR MOT, ``metrics.multi_target_scores``), mean GOSPA (c = 10 m, p = 2,
-α = 2) and the time per scan. The paper reports, for one to three people, the right number of
-targets, crossing people disambiguated and no spurious track. Each dataset runs with our
+track is matched to no person within c = 10 m), identity switches (CLEAR MOT mismatches,
+``metrics.multi_target_scores``), mean GOSPA (c = 10 m, p = 2, α = 2) and the time per scan.
+The paper reports, for one to three people, the right number of targets, crossing people
+disambiguated and no spurious track. Each dataset runs with our
 default fusion ("fit": targets fitted to each scan by eq. (4), helped by the tracks,
 ``bintrack.target_fit``) and with the paper's (cells clustered around seeds; a cell is computed
 only when its own sensor detects). It writes a Fig. 6-like plot per dataset (detections, fused
