@@ -177,6 +177,23 @@ def test_a_person_seen_again_aside_after_a_missed_scan_keeps_their_identity(jump
         assert identities == {1}, f"seed {seed}"
 
 
+@pytest.mark.parametrize("missed, identities", [(3, 1), (4, 2)])
+def test_a_person_unreported_for_up_to_d_bar_scans_keeps_their_identity(missed, identities):
+    # one person at 1.2 m/s goes `missed` scans without a report: after d̄ = 3 the chain often
+    # starts a new track, which takes the ended track's identity if its first report could
+    # follow that track's last; after 4 no report can, and the person gets a new identity
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        tracker = OnlineMCMCDA(MCMCDAConfig(seed=0))
+        seen = set()
+        for k in range(40):
+            t = 0.5 * k
+            reports = [] if 20 <= k < 20 + missed else [PositionReport(
+                x=10 + 1.2 * t + rng.normal(0, 1.5), y=30 + rng.normal(0, 1.5), cov=((2.0, 0.0), (0.0, 2.0)))]
+            seen |= {tr.track for tr in tracker.step(PositionReports(t=t, reports=reports)).tracks}
+        assert len(seen) == identities, f"seed {seed}"
+
+
 def test_mcmcda_is_deterministic_given_the_seed():
     _, scans = constant_velocity_reports(seed=4, scans=40)
     first, again, other = (OnlineMCMCDA(MCMCDAConfig(seed=seed)) for seed in (7, 7, 8))

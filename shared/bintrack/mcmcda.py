@@ -33,7 +33,10 @@ identity does not get published while a track with one, unreported for more than
 at most d̄ scans, could be its target: the newcomer is within ``gate_sigmas`` σ of where the old
 track predicts it (σ² the two position variances summed), or its first report lies in the old
 track's gate. The old track is shown instead, predicted. If it stays unreported for over d̄ scans
-it can no longer continue, and the newcomer inherits its identity.
+it can no longer continue, and the newcomer inherits its identity. And a track published for the
+first time takes the identity of the nearest published track that has ended (left the MAP)
+whose last report its first one could follow, if any: the chain found a new target more likely
+than a long gap, but for the user it is most likely the same person.
 
 Shared reports (copies the fusion makes for a track whose target hides in another's blob,
 :mod:`bintrack.target_fit`) are scored like any report, but no new track may begin with one.
@@ -168,6 +171,7 @@ class OnlineMCMCDA:
         self._scan = -1
         self._tracks: list[_Track] = []  # the current MAP
         self._owner: dict[int, int] = {}  # report → identity of the last labelled MAP track holding it
+        self._last_end: dict[int, tuple] = {}  # published identity → its track's last report then (_end_of)
         self._next_identity = 1
         self._log_lf = math.log(config.false_alarm_rate)
         self._log_lb = math.log(config.birth_rate)
@@ -607,6 +611,14 @@ class OnlineMCMCDA:
         out.sort(key=lambda e: -e.reports)
         return out
 
+    def _stitch(self, track: _Track, in_use: set[int]) -> int:
+        """The identity for a track published for the first time: that of the nearest ended
+        track whose last report its first report could follow (within the gate), else a fresh one."""
+        first = self._reports[track.reports[0]]
+        ended = [(math.hypot(first.x - end[2], first.y - end[3]), label) for label, end in self._last_end.items()
+                 if label not in in_use and self._follows(*end, track.reports[0])]
+        return min(ended)[1] if ended else self._new_identity()
+
     def _publish(self, t: float) -> TrackSet:
         c = self.config
         shown, hidden = [], []
@@ -634,10 +646,15 @@ class OnlineMCMCDA:
                     shown[n] = hidden.pop(h)
                     self._owner.update(dict.fromkeys(track.reports, old.label))
                     break
+        for label in [k for k, end in self._last_end.items() if self._scan - end[0] > c.window + c.max_misses]:
+            del self._last_end[label]  # no report of the window can follow it any more
+        in_use = {t.label for t in self._tracks if t.label is not None}
         out = []
         for track, sx, sy in shown:
             if track.label is None:
-                track.label = self._new_identity()
+                track.label = self._stitch(track, in_use)
+                in_use.add(track.label)
+            self._last_end[track.label] = self._end_of(track)
             out.append(Track(track=track.label, x=sx[0], y=sy[0], vx=sx[1], vy=sy[1]))
         out.sort(key=lambda tr: tr.track)
         return TrackSet(t=t, tracker=self.name, tracks=out)
