@@ -158,39 +158,39 @@ def test_mcmcda_rejects_pure_clutter():
     assert sum(lives.values()) <= 60 // 10
 
 
+def identities_of_one_walker(seed: int, speed: float, noise: float, unreported, offset=lambda k: 0.0) -> set[int]:
+    """The track identities published for one person walking along y = 30 at ``speed`` m/s for
+    40 scans of 0.5 s, reported with ``noise`` m per axis except in the scans k where
+    ``unreported(k)``, and ``offset(k)`` m aside."""
+    rng = np.random.default_rng(seed)
+    tracker = OnlineMCMCDA(MCMCDAConfig(seed=0))
+    seen = set()
+    for k in range(40):
+        t = 0.5 * k
+        reports = [] if unreported(k) else [PositionReport(
+            x=10 + speed * t + rng.normal(0, noise), y=30 + offset(k) + rng.normal(0, noise),
+            cov=((noise ** 2 + 0.5, 0.0), (0.0, noise ** 2 + 0.5)))]
+        seen |= {tr.track for tr in tracker.step(PositionReports(t=t, reports=reports)).tracks}
+    return seen
+
+
 @pytest.mark.parametrize("jump", [8.0, 9.0])
 def test_a_person_seen_again_aside_after_a_missed_scan_keeps_their_identity(jump):
-    # one person walks along y = 30 at 1 m/s, goes unreported for a scan, and is then reported
-    # `jump` m aside: the chain often explains the new reports as a new track for a while
-    # before it joins them to the old one, or leaves the old one ended; either way the person
-    # is published under one identity
+    # one person goes unreported for a scan and is then reported `jump` m aside: the chain
+    # often explains the new reports as a new track for a while before it joins them to the
+    # old one, or leaves the old one ended; either way the person is published under one identity
     for seed in range(8):
-        rng = np.random.default_rng(seed)
-        tracker = OnlineMCMCDA(MCMCDAConfig(seed=0))
-        identities = set()
-        for k in range(40):
-            t = 0.5 * k
-            reports = [] if k == 20 else [PositionReport(x=10 + t + rng.normal(0, 1),
-                                                         y=30 + (jump if k > 20 else 0) + rng.normal(0, 1),
-                                                         cov=((1.0, 0.0), (0.0, 1.0)))]
-            identities |= {tr.track for tr in tracker.step(PositionReports(t=t, reports=reports)).tracks}
-        assert identities == {1}, f"seed {seed}"
+        seen = identities_of_one_walker(seed, 1.0, 1.0, lambda k: k == 20, lambda k: jump if k > 20 else 0.0)
+        assert seen == {1}, f"seed {seed}"
 
 
 @pytest.mark.parametrize("missed, identities", [(3, 1), (4, 2)])
 def test_a_person_unreported_for_up_to_d_bar_scans_keeps_their_identity(missed, identities):
-    # one person at 1.2 m/s goes `missed` scans without a report: after d̄ = 3 the chain often
-    # starts a new track, which takes the ended track's identity if its first report could
-    # follow that track's last; after 4 no report can, and the person gets a new identity
+    # one person goes `missed` scans without a report: after d̄ = 3 the chain often starts a new
+    # track, which takes the ended track's identity if its first report could follow that
+    # track's last; after 4 no report can, and the person gets a new identity
     for seed in range(8):
-        rng = np.random.default_rng(seed)
-        tracker = OnlineMCMCDA(MCMCDAConfig(seed=0))
-        seen = set()
-        for k in range(40):
-            t = 0.5 * k
-            reports = [] if 20 <= k < 20 + missed else [PositionReport(
-                x=10 + 1.2 * t + rng.normal(0, 1.5), y=30 + rng.normal(0, 1.5), cov=((2.0, 0.0), (0.0, 2.0)))]
-            seen |= {tr.track for tr in tracker.step(PositionReports(t=t, reports=reports)).tracks}
+        seen = identities_of_one_walker(seed, 1.2, 1.5, lambda k: 20 <= k < 20 + missed)
         assert len(seen) == identities, f"seed {seed}"
 
 
