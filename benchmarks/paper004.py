@@ -10,10 +10,10 @@ born and one to be let go), the longest life of a false track (consecutive scans
 track is matched to no person within c = 10 m), identity switches (CLEAR MOT mismatches,
 ``metrics.multi_target_scores``), mean GOSPA (c = 10 m, p = 2, α = 2) and the time per scan.
 The paper reports, for one to three people, the right number of targets, crossing people
-disambiguated and no spurious track. Each dataset runs with our
-default fusion ("fit": targets fitted to each scan by eq. (4), helped by the tracks,
-``bintrack.target_fit``) and with the paper's (cells clustered around seeds; a cell is computed
-only when its own sensor detects). It writes a Fig. 6-like plot per dataset (detections, fused
+disambiguated and no spurious track. Each dataset runs with our default fusion ("fit":
+targets fitted to each scan by eq. (4), helped by the tracks, ``bintrack.target_fit``) and
+with the paper's (cells clustered around seeds; a cell is computed only when its own sensor
+detects). It writes a Fig. 6-like plot per dataset (detections, fused
 likelihood, tracks; default fusion) into ``--out``. Then it runs our fusion again with sampler
 seeds 0..N−1 (``--seeds``) and prints the mean and range of each figure: the MAP of a
 500-iteration chain moves with the seed.

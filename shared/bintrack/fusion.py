@@ -184,10 +184,11 @@ class GridFusion:
         sensor, in ``ids`` order), and their log-likelihoods.
 
         A cell counts when at least n_d covering sensors detect (and, with ``owner_detects``, the
-        sensor it is assigned to, which computes it, §III distributed form). The value is the detection part of eq. (4); with
-        ``full``, eq. (4) itself up to a factor common to all cells (the covering sensors'
-        likelihood ratios against a false detection), which is just as local. Sensors outside
-        ``active`` (default: all) take no part: neither their detections nor their misses count.
+        sensor it is assigned to, which computes it, §III distributed form). The value is the
+        detection part of eq. (4); with ``full``, eq. (4) itself up to a factor common to all
+        cells (the covering sensors' likelihood ratios against a false detection), which is just
+        as local. Sensors outside ``active`` (default: all) take no part: neither their
+        detections nor their misses count.
         """
         y = detecting.astype(float)
         if active is not None:

@@ -583,13 +583,14 @@ class OnlineMCMCDA:
                 dead.anchor = replace(dead.anchor, identity=self._new_identity())
                 dead.label = dead.anchor.identity
 
-    def _filtered(self, track: _Track):
-        """(state x, state y, time of the last report, reports in all) of ``track``."""
+    def _predicted(self, track: _Track, t: float):
+        """(state x, state y, reports in all) of ``track``, filtered and predicted to time ``t`` (s)."""
         sx, sy, _, last_t, count, rest = self._start(track)
         for rep in rest:
             sx, sy, _ = self._advance(sx, sy, last_t, rep)
             last_t = rep.t
-        return sx, sy, last_t, count + len(rest)
+        q = self.config.process_noise
+        return _predict(sx, t - last_t, q), _predict(sy, t - last_t, q), count + len(rest)
 
     def expected(self, t: float) -> list[Expectation]:
         """Where the MAP's live tracks (of two reports or more, unreported for at most d̄ scans
@@ -601,11 +602,9 @@ class OnlineMCMCDA:
             end = self._end_of(track)
             if end is None or self._scan + 1 - end[0] > c.max_misses:
                 continue
-            sx, sy, last_t, count = self._filtered(track)
+            sx, sy, count = self._predicted(track, t)
             if count < 2:
                 continue
-            sx = _predict(sx, t - last_t, c.process_noise)
-            sy = _predict(sy, t - last_t, c.process_noise)
             out.append(Expectation(x=sx[0], y=sy[0], sigma=math.sqrt(max(sx[2], sy[2])), vx=sx[1], vy=sy[1],
                                    reports=count, unreported=self._scan + 1 - end[0]))
         out.sort(key=lambda e: -e.reports)
@@ -626,10 +625,9 @@ class OnlineMCMCDA:
             end = self._end_of(track)
             if end is None or self._scan - end[0] > c.max_misses:
                 continue
-            sx, sy, last_t, count = self._filtered(track)
+            sx, sy, count = self._predicted(track, t)
             if count < c.min_reports:
                 continue
-            sx, sy = _predict(sx, t - last_t, c.process_noise), _predict(sy, t - last_t, c.process_noise)
             if self._scan - end[0] <= c.coast:
                 shown.append((track, sx, sy))
             elif track.label is not None:

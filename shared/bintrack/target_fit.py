@@ -162,11 +162,13 @@ class _Scan:
             mask[self.fit._sensors_of[c]] = True
         return mask
 
-    def gains(self, others: list[int]) -> tuple[np.ndarray, np.ndarray]:
-        """Per cell: the gain (nats) of a target there given targets at ``others``, and the
-        detections it would newly explain."""
-        free = ~self._covered(others)
-        return self.grid.cover @ (self.weight * free), self.grid.cover @ (self.hits & free).astype(float)
+    def gains(self, others: list[int]) -> np.ndarray:
+        """Per cell: the gain (nats) of a target there given targets at ``others``."""
+        return self.grid.cover @ (self.weight * ~self._covered(others))
+
+    def new_hits(self, others: list[int]) -> np.ndarray:
+        """Per cell: the detections a target there would explain that ``others`` do not."""
+        return self.grid.cover @ (self.hits & ~self._covered(others)).astype(float)
 
     def _others(self, k: int) -> list[int]:
         return [t.cell for i, t in enumerate(self.targets) if i != k]
@@ -185,14 +187,14 @@ class _Scan:
         # mass beyond the sensors' reach (a target leaving) supports nothing
         log_prior = -0.5 * d2 / expectation.sigma ** 2 - math.log(2 * math.pi * expectation.sigma ** 2 / self.grid.cell ** 2)
         target = _Target(cell=-1, expectation=e, gate=gate, log_prior=log_prior)
-        gain, _ = self.gains([t.cell for t in self.targets])
+        gain = self.gains([t.cell for t in self.targets])
         if self._support(target, gain) >= self.config.expected_gain:
             target.cell = int(gate[np.argmax(gain[gate])])
             self.targets.append(target)
 
     def place_new(self) -> bool:
-        gain, new_hits = self.gains([t.cell for t in self.targets])
-        gain = np.where(new_hits >= self.config.threshold, gain, -np.inf)
+        others = [t.cell for t in self.targets]
+        gain = np.where(self.new_hits(others) >= self.config.threshold, self.gains(others), -np.inf)
         best = int(np.argmax(gain))
         if not gain[best] >= self.config.min_gain:
             return False
@@ -204,7 +206,7 @@ class _Scan:
         for _ in range(_MAX_SWEEPS):
             moved = False
             for k, target in enumerate(self.targets):
-                gain, _ = self.gains(self._others(k))
+                gain = self.gains(self._others(k))
                 cells = target.gate if target.gate is not None else slice(None)
                 best = int(np.argmax(gain[cells]))
                 best = int(target.gate[best]) if target.gate is not None else best
@@ -231,7 +233,7 @@ class _Scan:
                 pair = [int(self.grid.cell_tree.query(centre + u)[1]), int(self.grid.cell_tree.query(centre - u)[1])]
                 for _ in range(4):
                     for i in (0, 1):
-                        gain, _ = self.gains(others + [pair[1 - i]])
+                        gain = self.gains(others + [pair[1 - i]])
                         pair[i] = int(np.argmax(gain))
                 total = self._total(others + pair)
                 if total > best_total:
@@ -247,7 +249,7 @@ class _Scan:
         while self.targets:
             margins = []
             for k, target in enumerate(self.targets):
-                gain, _ = self.gains(self._others(k))
+                gain = self.gains(self._others(k))
                 if target.expectation is not None:
                     margins.append(self._support(target, gain) - self.config.expected_gain)
                 else:
@@ -260,7 +262,7 @@ class _Scan:
 
     def report(self, k: int) -> PositionReport:
         target = self.targets[k]
-        gain, _ = self.gains(self._others(k))
+        gain = self.gains(self._others(k))
         near = np.asarray(self.grid.cell_tree.query_ball_point(self.grid.cells[target.cell],
                                                                r=float(self.grid.cell_range[target.cell])))
         return weighted_report(self.grid.cells[near], np.exp(gain[near] - gain[target.cell]), self.grid.cell,
