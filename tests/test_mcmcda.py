@@ -184,13 +184,16 @@ def test_a_person_seen_again_aside_after_a_missed_scan_keeps_their_identity(jump
         assert seen == {1}, f"seed {seed}"
 
 
-@pytest.mark.parametrize("missed, identities", [(3, 1), (4, 2)])
-def test_a_person_unreported_for_up_to_d_bar_scans_keeps_their_identity(missed, identities):
-    # one person goes `missed` scans without a report: after d̄ = 3 the chain often starts a new
-    # track, which takes the ended track's identity if its first report could follow that
-    # track's last; after 4 no report can, and the person gets a new identity
+@pytest.mark.parametrize("missed, aside, identities", [(3, 0.0, 1), (6, 0.0, 1), (15, 0.0, 1), (6, 15.0, 2), (17, 0.0, 2)])
+def test_a_person_unreported_for_a_while_keeps_their_identity_where_their_track_predicts_them(missed, aside, identities):
+    # one person goes `missed` scans of 0.5 s without a report, then is reported `aside` m off
+    # their path: after d̄ = 3 scans the chain starts a new track. It takes the ended track's
+    # identity if its first report could follow that track's last (3 missed), or lies within 3σ
+    # of that track's prediction and at most `reidentify` = 8 s after it was last shown (6 and
+    # 15 missed). 15 m aside, or 17 missed scans (8.5 s), the person gets a new identity.
     for seed in range(8):
-        seen = identities_of_one_walker(seed, 1.2, 1.5, lambda k: 20 <= k < 20 + missed)
+        seen = identities_of_one_walker(seed, 1.2, 1.5, lambda k: 20 <= k < 20 + missed,
+                                        lambda k: aside if k >= 20 + missed else 0.0)
         assert len(seen) == identities, f"seed {seed}"
 
 
@@ -224,7 +227,7 @@ def test_mcmcda_tracker_on_darpa_grid_1_counts_one_person():
     assert scores.gospa_mean < 3.0
 
 
-@pytest.mark.parametrize("field, value", [("pd", 1.0), ("window", 1), ("false_alarm_rate", 0.0), ("n_mc", 0)])
+@pytest.mark.parametrize("field, value", [("pd", 1.0), ("window", 1), ("false_alarm_rate", 0.0), ("n_mc", 0), ("reidentify", -1.0)])
 def test_a_parameter_out_of_range_is_refused(field, value):
     with pytest.raises(ValueError, match=field):
         MCMCDAConfig(**{field: value})

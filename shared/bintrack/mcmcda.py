@@ -97,6 +97,9 @@ class MCMCDAConfig:
     """reports a track needs (fixed and in the window) before it is published"""
     coast: int = 1
     """scans a published track is predicted past its last report before it is dropped"""
+    reidentify: float = 8.0
+    """s: a new track takes the identity of a track last shown at most this long before its
+    first report, if that report lies within ``gate_sigmas`` of the old track's prediction"""
 
     def __post_init__(self):
         checks = [("window", self.window >= 2), ("n_mc", self.n_mc >= 1), ("max_misses", self.max_misses >= 0),
@@ -104,7 +107,7 @@ class MCMCDAConfig:
                   ("false_alarm_rate", self.false_alarm_rate > 0), ("birth_rate", self.birth_rate > 0),
                   ("max_speed", self.max_speed > 0), ("initial_speed", self.initial_speed > 0),
                   ("process_noise", self.process_noise > 0), ("extra_variance", self.extra_variance >= 0),
-                  ("gate_sigmas", self.gate_sigmas > 0), ("coast", self.coast >= 0), ("min_reports", self.min_reports >= 2)]
+                  ("gate_sigmas", self.gate_sigmas > 0), ("coast", self.coast >= 0), ("reidentify", self.reidentify >= 0), ("min_reports", self.min_reports >= 2)]
         bad = [name for name, ok in checks if not ok]
         if bad:
             raise ValueError(f"MCMCDA parameter out of range: {', '.join(f'{n}={getattr(self, n)}' for n in bad)}")
@@ -172,6 +175,7 @@ class OnlineMCMCDA:
         self._tracks: list[_Track] = []  # the current MAP
         self._owner: dict[int, int] = {}  # report → identity of the last labelled MAP track holding it
         self._last_end: dict[int, tuple] = {}  # published identity → its track's last report then (_end_of)
+        self._last_shown: dict[int, tuple] = {}  # published identity → (t, state x, state y) when last shown
         self._next_identity = 1
         self._log_lf = math.log(config.false_alarm_rate)
         self._log_lb = math.log(config.birth_rate)
@@ -612,11 +616,24 @@ class OnlineMCMCDA:
 
     def _stitch(self, track: _Track, in_use: set[int]) -> int:
         """The identity for a track published for the first time: that of the nearest ended
-        track whose last report its first report could follow (within the gate), else a fresh one."""
+        track whose last report its first report could follow (within the chain's gate); else
+        that of the ended track, last shown at most ``reidentify`` s before, whose prediction
+        its first report fits best within ``gate_sigmas``; else a fresh one."""
         first = self._reports[track.reports[0]]
         ended = [(math.hypot(first.x - end[2], first.y - end[3]), label) for label, end in self._last_end.items()
                  if label not in in_use and self._follows(*end, track.reports[0])]
-        return min(ended)[1] if ended else self._new_identity()
+        if ended:
+            return min(ended)[1]
+        fits = []
+        for label, (t, sx, sy) in self._last_shown.items():
+            if label in in_use or not 0 < first.t - t <= self.config.reidentify:
+                continue
+            px = _predict(sx, first.t - t, self.config.process_noise)
+            py = _predict(sy, first.t - t, self.config.process_noise)
+            d2 = (first.x - px[0]) ** 2 / (px[2] + first.rx) + (first.y - py[0]) ** 2 / (py[2] + first.ry)
+            if d2 <= self.config.gate_sigmas ** 2:
+                fits.append((d2, label))
+        return min(fits)[1] if fits else self._new_identity()
 
     def _publish(self, t: float) -> TrackSet:
         c = self.config
@@ -646,6 +663,8 @@ class OnlineMCMCDA:
                     break
         for label in [k for k, end in self._last_end.items() if self._scan - end[0] > c.window + c.max_misses]:
             del self._last_end[label]  # no report of the window can follow it any more
+        for label in [k for k, seen in self._last_shown.items() if t - seen[0] > c.reidentify]:
+            del self._last_shown[label]
         in_use = {t.label for t in self._tracks if t.label is not None}
         out = []
         for track, sx, sy in shown:
@@ -653,6 +672,7 @@ class OnlineMCMCDA:
                 track.label = self._stitch(track, in_use)
                 in_use.add(track.label)
             self._last_end[track.label] = self._end_of(track)
+            self._last_shown[track.label] = (t, sx, sy)
             out.append(Track(track=track.label, x=sx[0], y=sy[0], vx=sx[1], vy=sy[1]))
         out.sort(key=lambda tr: tr.track)
         return TrackSet(t=t, tracker=self.name, tracks=out)
