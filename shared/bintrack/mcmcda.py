@@ -98,8 +98,9 @@ class MCMCDAConfig:
     coast: int = 1
     """scans a published track is predicted past its last report before it is dropped"""
     reidentify: float = 8.0
-    """s: a new track takes the identity of a track last shown at most this long before its
-    first report, if that report lies within ``gate_sigmas`` of the old track's prediction"""
+    """s: a new track takes the identity of a track last shown at most this long ago (and
+    before its first report), if that report lies within ``gate_sigmas`` of the old track's
+    prediction"""
 
     def __post_init__(self):
         checks = [("window", self.window >= 2), ("n_mc", self.n_mc >= 1), ("max_misses", self.max_misses >= 0),
@@ -174,8 +175,8 @@ class OnlineMCMCDA:
         self._scan = -1
         self._tracks: list[_Track] = []  # the current MAP
         self._owner: dict[int, int] = {}  # report → identity of the last labelled MAP track holding it
-        self._last_end: dict[int, tuple] = {}  # published identity → its track's last report then (_end_of)
-        self._last_shown: dict[int, tuple] = {}  # published identity → (t, state x, state y) when last shown
+        # published identity → (its track's last report then (_end_of), t, state x, state y) when last shown
+        self._last_seen: dict[int, tuple] = {}
         self._next_identity = 1
         self._log_lf = math.log(config.false_alarm_rate)
         self._log_lb = math.log(config.birth_rate)
@@ -614,19 +615,20 @@ class OnlineMCMCDA:
         out.sort(key=lambda e: -e.reports)
         return out
 
-    def _stitch(self, track: _Track, in_use: set[int]) -> int:
-        """The identity for a track published for the first time: that of the nearest ended
-        track whose last report its first report could follow (within the chain's gate); else
-        that of the ended track, last shown at most ``reidentify`` s before, whose prediction
-        its first report fits best within ``gate_sigmas``; else a fresh one."""
+    def _stitch(self, track: _Track, in_use: set[int], now: float) -> int:
+        """The identity for a track published for the first time at ``now`` (s): that of the
+        nearest ended track whose last report its first report could follow (within the chain's
+        gate); else that of the ended track, last shown before that report and at most
+        ``reidentify`` s before ``now``, whose prediction the report fits best within
+        ``gate_sigmas``; else a fresh one."""
         first = self._reports[track.reports[0]]
-        ended = [(math.hypot(first.x - end[2], first.y - end[3]), label) for label, end in self._last_end.items()
+        ended = [(math.hypot(first.x - end[2], first.y - end[3]), label) for label, (end, *_) in self._last_seen.items()
                  if label not in in_use and self._follows(*end, track.reports[0])]
         if ended:
             return min(ended)[1]
         fits = []
-        for label, (t, sx, sy) in self._last_shown.items():
-            if label in in_use or not 0 < first.t - t <= self.config.reidentify:
+        for label, (_, t, sx, sy) in self._last_seen.items():
+            if label in in_use or not (t < first.t and now - t <= self.config.reidentify):
                 continue
             px = _predict(sx, first.t - t, self.config.process_noise)
             py = _predict(sy, first.t - t, self.config.process_noise)
@@ -661,18 +663,17 @@ class OnlineMCMCDA:
                     shown[n] = hidden.pop(h)
                     self._owner.update(dict.fromkeys(track.reports, old.label))
                     break
-        for label in [k for k, end in self._last_end.items() if self._scan - end[0] > c.window + c.max_misses]:
-            del self._last_end[label]  # no report of the window can follow it any more
-        for label in [k for k, seen in self._last_shown.items() if t - seen[0] > c.reidentify]:
-            del self._last_shown[label]
+        # forgotten once no report of the window can follow its last one and it is too old to re-identify
+        for label in [k for k, (end, seen, *_) in self._last_seen.items()
+                      if self._scan - end[0] > c.window + c.max_misses and t - seen > c.reidentify]:
+            del self._last_seen[label]
         in_use = {t.label for t in self._tracks if t.label is not None}
         out = []
         for track, sx, sy in shown:
             if track.label is None:
-                track.label = self._stitch(track, in_use)
+                track.label = self._stitch(track, in_use, t)
                 in_use.add(track.label)
-            self._last_end[track.label] = self._end_of(track)
-            self._last_shown[track.label] = (t, sx, sy)
+            self._last_seen[track.label] = (self._end_of(track), t, sx, sy)
             out.append(Track(track=track.label, x=sx[0], y=sy[0], vx=sx[1], vy=sy[1]))
         out.sort(key=lambda tr: tr.track)
         return TrackSet(t=t, tracker=self.name, tracks=out)
