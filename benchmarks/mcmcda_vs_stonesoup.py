@@ -155,7 +155,7 @@ def run_ours(case: Case) -> None:
         tracker = make_tracker("mcmcda", dataset.deployment)
     except (ValueError, TypeError):
         tracker = MCMCDATracker(dataset.deployment, config=MCMCDAConfig())
-    config = case.config = tracker.mcmcda.config
+    config = case.config = tracker.mcmcda.config  # in the dataset's units
     tracksets = []
     start = time.perf_counter()
     for out in run_tracker(dataset, tracker):
@@ -169,7 +169,7 @@ def run_ours(case: Case) -> None:
 
     # Stone Soup cannot tell our fusion where its tracks expect targets, so it gets the fusion's
     # reports without that aid (and without the copies made for unresolved targets)
-    plain = MCMCDATracker(dataset.deployment, FusionConfig(track_aided=False), config)
+    plain = MCMCDATracker(dataset.deployment, FusionConfig(track_aided=False))
     case.plain_reports = [out for out in run_tracker(dataset, plain) if isinstance(out, PositionReports)]
 
     online = OnlineMCMCDA(config, tracker.name)

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from bintrack.errors import CommandError
-from bintrack.formats import TrackRow, open_dataset
+from bintrack.formats import Dataset, TrackRow, open_dataset
 from bintrack.fusion import FusionConfig, GridFusion, ScanFusion
 from bintrack.mcmcda import MCMCDAConfig, OnlineMCMCDA
 from bintrack.messages import Deployment, DiskSensor, MotionSensor, PositionReport, PositionReports, Region, Transition, TrackSet
 from bintrack.metrics import multi_target_scores, truth_paths
 from bintrack.pipeline import run_tracker
-from bintrack.trackers import make_tracker
+from bintrack.trackers import TrackerOptions, make_tracker
 
 from conftest import REPO
 
@@ -225,6 +225,49 @@ def test_mcmcda_tracker_on_darpa_grid_1_counts_one_person():
     scores = multi_target_scores(rows, paths, 10.0, times=[ts.t for ts in inside])
     assert scores.count_correct >= 0.9
     assert scores.gospa_mean < 3.0
+
+
+FOOT = 0.3048  # m
+
+
+def in_feet(deployment: Deployment) -> Deployment:
+    """The same field, every length given in feet."""
+    region = Region(**{k: v / FOOT for k, v in deployment.region.model_dump().items()})
+    sensors = [s.model_copy(update={"x": s.x / FOOT, "y": s.y / FOOT, "range": s.range / FOOT}) for s in deployment.sensors]
+    return deployment.model_copy(update={"units": "ft", "region": region, "sensors": sensors})
+
+
+def test_a_field_described_in_feet_is_tracked_like_the_same_field_in_metres():
+    metres = open_dataset(REPO / "datasets" / "darpa-grid-1")
+    feet = Dataset(metres.path, in_feet(metres.deployment))
+    assert feet.deployment.metres_per_unit == FOOT
+
+    def tracks(dataset):
+        return [ts for ts in run_tracker(dataset, make_tracker("mcmcda", dataset.deployment)) if isinstance(ts, TrackSet)]
+
+    in_m, in_ft = tracks(metres), tracks(feet)
+    assert [[tr.track for tr in ts.tracks] for ts in in_ft] == [[tr.track for tr in ts.tracks] for ts in in_m]
+    # equal up to rounding: a gain summed in another order can pick a neighbouring cell
+    for a, b in zip(in_m, in_ft):
+        for ta, tb in zip(a.tracks, b.tracks):
+            assert math.hypot(tb.x * FOOT - ta.x, tb.y * FOOT - ta.y) < 0.05
+            assert math.hypot(tb.vx * FOOT - ta.vx, tb.vy * FOOT - ta.vy) < 0.05
+
+
+def test_mcmcda_parameters_in_metres_convert_to_feet():
+    m = MCMCDAConfig()
+    ft = m.in_units(FOOT)
+    assert ft.max_speed == pytest.approx(m.max_speed / FOOT) and ft.initial_speed == pytest.approx(m.initial_speed / FOOT)
+    assert ft.process_noise == pytest.approx(m.process_noise / FOOT ** 2)
+    assert ft.extra_variance == pytest.approx(m.extra_variance / FOOT ** 2)
+    assert ft.false_alarm_rate == pytest.approx(m.false_alarm_rate * FOOT ** 2)
+    assert ft.birth_rate == pytest.approx(m.birth_rate * FOOT ** 2)
+    assert (ft.window, ft.n_mc, ft.pd, ft.reidentify) == (m.window, m.n_mc, m.pd, m.reidentify)
+    assert m.in_units(1.0) == m
+    # the tracker converts its metre defaults, but --speed is already in the deployment's units
+    deployment = in_feet(grid_deployment())
+    assert make_tracker("mcmcda", deployment).mcmcda.config.max_speed == pytest.approx(m.max_speed / FOOT)
+    assert make_tracker("mcmcda", deployment, TrackerOptions(speed=5.0)).mcmcda.config.max_speed == pytest.approx(5.0)
 
 
 @pytest.mark.parametrize("field, value", [("pd", 1.0), ("window", 1), ("false_alarm_rate", 0.0), ("n_mc", 0), ("reidentify", -1.0)])

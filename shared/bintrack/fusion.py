@@ -70,7 +70,8 @@ class FusionConfig:
     shared: bool = True
     """"fit": copy a report for an established track hidden in another track's blob"""
     shared_speed: float = 0.5
-    """the least difference in velocity, units/s, between the hidden track and the report's"""
+    """the least difference in velocity, m/s (converted to the deployment's units), between the
+    hidden track and the report's"""
     shared_age: int = 6
     """reports both tracks must have taken before a copy is made"""
     shared_gap: float = 1.0
@@ -107,6 +108,8 @@ class GridFusion:
         if config.threshold < 1:
             raise CommandError(f"fusion threshold n_d must be at least 1, got {config.threshold}")
         self.config = config
+        self.metres_per_unit = deployment.metres_per_unit
+        """metres in one deployment unit (for the parameters given in metres)"""
         self.ids = [s.id for s in sensors]
         self.index = {sid: i for i, sid in enumerate(self.ids)}
         positions = np.array([(s.x, s.y) for s in sensors])

@@ -62,7 +62,10 @@ _LOG_2PI = math.log(2.0 * math.pi)
 
 @dataclass(frozen=True)
 class MCMCDAConfig:
-    """Parameters of the model (eq. 3, Kalman filter) and of the online sampler."""
+    """Parameters of the model (eq. 3, Kalman filter) and of the online sampler.
+
+    Lengths are in the reports' units; the defaults are for metres (people walking through PIR
+    sensors of about 8 m range), and :meth:`in_units` converts them to other units."""
 
     window: int = 5
     """sliding-window length, scans"""
@@ -101,6 +104,15 @@ class MCMCDAConfig:
     """s: a new track takes the identity of a track last shown at most this long ago (and
     before its first report), if that report lies within ``gate_sigmas`` of the old track's
     prediction"""
+
+    def in_units(self, metres_per_unit: float) -> MCMCDAConfig:
+        """This configuration, read as metres and seconds, in units of ``metres_per_unit`` m:
+        speeds and the report variance scale by 1/metres_per_unit (squared for variances and
+        q), and the rates per unit area by metres_per_unit²."""
+        k = 1.0 / metres_per_unit
+        return replace(self, process_noise=self.process_noise * k * k, extra_variance=self.extra_variance * k * k,
+                       initial_speed=self.initial_speed * k, max_speed=self.max_speed * k,
+                       false_alarm_rate=self.false_alarm_rate / (k * k), birth_rate=self.birth_rate / (k * k))
 
     def __post_init__(self):
         checks = [("window", self.window >= 2), ("n_mc", self.n_mc >= 1), ("max_misses", self.max_misses >= 0),

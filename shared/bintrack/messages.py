@@ -180,6 +180,10 @@ class Calibration(BaseModel):
     passes: list[CalibrationPass] = Field(default_factory=list)
 
 
+METRES_PER_UNIT = {"m": 1.0, "ft": 0.3048, "unit": 1.0}
+"""length of one deployment unit in metres; an abstract ``unit`` is taken as a metre"""
+
+
 class Deployment(Message):
     """``deployment.json`` of DESIGN §6, and the payload of the ``deployment`` queryable."""
 
@@ -191,6 +195,12 @@ class Deployment(Message):
     region: Region
     sensors: list[Sensor]
     calibration: Calibration | None = None
+
+    @property
+    def metres_per_unit(self) -> float:
+        """Metres in one of ``units`` (1 for the abstract ``unit``): converts physical defaults,
+        such as a walking person's speed, into the deployment's units."""
+        return METRES_PER_UNIT[self.units]
 
     @model_validator(mode="after")
     def _unique_ids(self):

@@ -32,7 +32,7 @@ a target adds the weights of the sensors it covers that no other target covers (
    nearby report, marked ``shared``, when all of these hold:
    - its prediction lies within one sensing range of that report;
    - the report was placed for another track;
-   - the two tracks have moved differently (by at least ``shared_speed``);
+   - the two tracks have moved differently (by at least ``shared_speed``, m/s);
    - both are established (at least ``shared_age`` reports);
    - it was reported in the previous scan;
    - its prediction is at least ``shared_edge`` sensing ranges inside the sensor field (the
@@ -287,7 +287,7 @@ class _Scan:
             reach = float(self.grid.cell_range[self.targets[k].cell])
             other = expected[owner_of[k]]
             if (gaps[k] > c.shared_gap * reach or other.reports < c.shared_age
-                    or math.hypot(hidden.vx - other.vx, hidden.vy - other.vy) < c.shared_speed
+                    or math.hypot(hidden.vx - other.vx, hidden.vy - other.vy) < c.shared_speed / self.grid.metres_per_unit
                     or self.grid.depth(hidden.x, hidden.y) < c.shared_edge * reach):
                 continue
             copied.add(k)

@@ -27,7 +27,7 @@ class TrackerOptions:
 
     speed: float | None = None
     """target speed, units/s (distance-weight, line-fit; mcmcda: the fastest target); None = estimated
-    (mcmcda: people walking, 3 units/s)"""
+    (mcmcda: people walking, 3 m/s)"""
     window: int | None = None
     """line-fit: estimates in the fitted history (default 10); velocity-plane, svm, ppr,
     motion-rw: periods in the estimate (default: every period so far; motion-rw 1)"""
@@ -49,7 +49,9 @@ def _window(o: TrackerOptions) -> dict:
 
 
 def _mcmcda(d: Deployment, o: TrackerOptions) -> MCMCDATracker:
-    speed = {"max_speed": o.speed, "initial_speed": o.speed / 2} if o.speed is not None else {}
+    # MCMCDAConfig is in metres; --speed is in the deployment's units
+    speed = o.speed * d.metres_per_unit if o.speed is not None else None
+    speed = {"max_speed": speed, "initial_speed": speed / 2} if speed is not None else {}
     config = replace(MCMCDAConfig(), seed=o.seed, **speed,
                      **({"n_mc": o.n_mc} if o.n_mc is not None else {}),
                      **({"window": o.scans} if o.scans is not None else {}))

@@ -16,13 +16,17 @@ from ..mcmcda import MCMCDAConfig, OnlineMCMCDA
 from ..messages import Deployment, LocalEstimate, Message, PositionReport, PositionReports, Transition
 from .base import Tracker
 
-_MIN_ESTIMATE_VARIANCE = 1.0  # units²: an arc of length 0 still has the sensing model's error
+_MIN_ESTIMATE_VARIANCE = 1.0  # m²: an arc of length 0 still has the sensing model's error
 
 
 class MCMCDATracker:
     """Transitions of disk sensors in event-time order → per scan, the ``PositionReports`` of
     the fusion (§III, plus any peer estimates) and the ``TrackSet`` of online MCMCDA (§IV) at
     the scan's time.
+
+    ``config`` is in metres and seconds, like :class:`MCMCDAConfig`'s defaults; the tracker
+    converts it to the deployment's units (``Deployment.metres_per_unit``), so that a field
+    described in feet is tracked as the same field in metres.
 
     ``peer``: a peer tracker run on the same transitions whose estimates join the reports
     (offline); live, the base station hands the peers' estimates to :meth:`add_estimate`.
@@ -33,10 +37,11 @@ class MCMCDATracker:
     def __init__(self, deployment: Deployment, fusion: FusionConfig = FusionConfig(),
                  config: MCMCDAConfig = MCMCDAConfig(), peer: Tracker | None = None):
         self.fusion = ScanFusion(deployment, fusion)
-        self.mcmcda = OnlineMCMCDA(config, self.name)
+        self.mcmcda = OnlineMCMCDA(config.in_units(deployment.metres_per_unit), self.name)
         self._track_aided = fusion.clustering == "fit" and fusion.track_aided
         self.peer = peer
         self._ranges = {s.id: s.range for s in deployment.sensors if hasattr(s, "range")}
+        self._min_estimate_variance = _MIN_ESTIMATE_VARIANCE / deployment.metres_per_unit ** 2
         self._pending: dict[int, list[tuple[float, str, PositionReport]]] = {}
         self.late_estimates = 0
 
@@ -59,7 +64,7 @@ class MCMCDATracker:
             self.late_estimates += 1
             return False
         if estimate.arc is not None:
-            variance = max((sensing_range * estimate.arc) ** 2 / 12.0, _MIN_ESTIMATE_VARIANCE)
+            variance = max((sensing_range * estimate.arc) ** 2 / 12.0, self._min_estimate_variance)
         else:
             variance = sensing_range ** 2 / 4.0
         report = PositionReport(x=estimate.x, y=estimate.y, cov=((variance, 0.0), (0.0, variance)))
