@@ -26,17 +26,21 @@ the track's filtered state becomes its *anchor*, from which the track continues 
 window, and whose identity it keeps.
 
 Identities (ours; Oh et al. leave output labels open). A track without an anchor takes the
-identity that most of its reports were last published under, else a fresh one when it is first
-published. The chain often re-explains a target's last few reports as a new track while the old
-one stays in the MAP, unreported; a scan or two later it joins them again. So a track without an
-identity does not get published while a track with one, unreported for more than ``coast`` and
-at most d̄ scans, could be its target: the newcomer is within ``gate_sigmas`` σ of where the old
-track predicts it (σ² the two position variances summed), or its first report lies in the old
-track's gate. The old track is shown instead, predicted. If it stays unreported for over d̄ scans
-it can no longer continue, and the newcomer inherits its identity. And a track published for the
-first time takes the identity of the nearest published track that has ended (left the MAP)
-whose last report its first one could follow, if any: the chain found a new target more likely
-than a long gap, but for the user it is most likely the same person.
+identity that most of its reports were last published under; failing that, it gets one when it
+is first published (below). The chain often re-explains a target's last few reports as a new
+track while the old one stays in the MAP, unreported; a scan or two later it joins them again.
+So a track without an identity does not get published while a track with one, unreported for
+more than ``coast`` and at most d̄ scans, could be its target: the newcomer is within
+``gate_sigmas`` σ of where the old track predicts it (σ² the two position variances summed), or
+its first report lies in the old track's gate. The old track is shown instead, predicted. If it
+stays unreported for over d̄ scans it can no longer continue, and the newcomer inherits its
+identity. And a track published for the first time takes the identity of the nearest published
+track that has ended (left the MAP) whose last report its first one could follow, if any: the
+chain found a new target more likely than a long gap, but for the user it is most likely the
+same person. Failing that, it is re-identified: it takes the identity of the track last shown at
+most ``reidentify`` s before, and before its first report, whose Kalman prediction that report
+fits best within ``gate_sigmas`` (a person lost for longer than d̄ scans, in clutter or beside
+someone else). Else it gets a fresh identity.
 
 Shared reports (copies the fusion makes for a track whose target hides in another's blob,
 :mod:`bintrack.target_fit`) are scored like any report, but no new track may begin with one.
