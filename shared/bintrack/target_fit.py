@@ -17,6 +17,11 @@ a target adds the weights of the sensors it covers that no other target covers (
    likelihood ratio of "the target is where the track says" against "it is not there".
    π is normalised over the whole plane, so prior mass outside the sensors' reach (a target
    leaving) supports nothing. The placed target may move within 3σ of the prediction.
+   Each track's support is judged on the scan alone, not given the targets of the tracks placed
+   before it: two tracks whose people walk within a range of each other share detections, and
+   whichever was placed first would take them all. Their targets settle together (coordinate
+   ascent, as in step 2), and step 4 drops one whose support, given the others, has fallen
+   below the bar.
 2. **New targets**, greedily. Each is placed at the cell of largest gain, if that gain is at
    least ``min_gain`` and the cell newly explains at least n_d detections (the paper's
    threshold). After each placement, every target moves in turn to its best cell given the
@@ -187,8 +192,8 @@ class _Scan:
         # mass beyond the sensors' reach (a target leaving) supports nothing
         log_prior = -0.5 * d2 / expectation.sigma ** 2 - math.log(2 * math.pi * expectation.sigma ** 2 / self.grid.cell ** 2)
         target = _Target(cell=-1, expectation=e, gate=gate, log_prior=log_prior)
-        gain = self.gains([t.cell for t in self.targets])
-        if self._support(target, gain) >= self.config.expected_gain:
+        if self._support(target, self.gains([])) >= self.config.expected_gain:
+            gain = self.gains([t.cell for t in self.targets])
             target.cell = int(gate[np.argmax(gain[gate])])
             self.targets.append(target)
 
