@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -167,6 +168,12 @@ class _Scan:
             mask[self.fit._sensors_of[c]] = True
         return mask
 
+    @cached_property
+    def gains_alone(self) -> np.ndarray:
+        """Per cell: the gain (nats) of a target there with no other target, the same for every
+        track's expected target in the scan."""
+        return self.gains([])
+
     def gains(self, others: list[int]) -> np.ndarray:
         """Per cell: the gain (nats) of a target there given targets at ``others``."""
         return self.grid.cover @ (self.weight * ~self._covered(others))
@@ -192,7 +199,7 @@ class _Scan:
         # mass beyond the sensors' reach (a target leaving) supports nothing
         log_prior = -0.5 * d2 / expectation.sigma ** 2 - math.log(2 * math.pi * expectation.sigma ** 2 / self.grid.cell ** 2)
         target = _Target(cell=-1, expectation=e, gate=gate, log_prior=log_prior)
-        if self._support(target, self.gains([])) >= self.config.expected_gain:
+        if self._support(target, self.gains_alone) >= self.config.expected_gain:
             gain = self.gains([t.cell for t in self.targets])
             target.cell = int(gate[np.argmax(gain[gate])])
             self.targets.append(target)

@@ -49,9 +49,10 @@ def _window(o: TrackerOptions) -> dict:
 
 
 def _mcmcda(d: Deployment, o: TrackerOptions) -> MCMCDATracker:
-    # MCMCDAConfig is in metres; --speed is in the deployment's units
-    speed = o.speed * d.metres_per_unit if o.speed is not None else None
-    speed = {"max_speed": speed, "initial_speed": speed / 2} if speed is not None else {}
+    speed = {}
+    if o.speed is not None:
+        fastest = o.speed * d.metres_per_unit  # MCMCDAConfig is in metres; --speed in the deployment's units
+        speed = {"max_speed": fastest, "initial_speed": fastest / 2}
     config = replace(MCMCDAConfig(), seed=o.seed, **speed,
                      **({"n_mc": o.n_mc} if o.n_mc is not None else {}),
                      **({"window": o.scans} if o.scans is not None else {}))
