@@ -104,7 +104,7 @@ def test_a_new_track_cannot_begin_with_a_shared_copy():
 
 def test_two_tracks_whose_people_share_detections_each_keep_a_target():
     # Two people 7 m apart, 8 m disks: most detections are in both disks. This scan's pattern
-    # (9 of the 13 sensors covering either person detect) is one where a target placed for the
+    # (9 of the 12 sensors covering either person detect) is one where a target placed for the
     # first track takes the shared detections, leaving the second too little support *given*
     # it; judged on the scan alone, as step 1 of the fit does, each track keeps its target.
     deployment = grid_deployment()
