@@ -108,8 +108,8 @@ class GridFusion:
         if config.threshold < 1:
             raise CommandError(f"fusion threshold n_d must be at least 1, got {config.threshold}")
         self.config = config
-        self.metres_per_unit = deployment.metres_per_unit
-        """metres in one deployment unit (for the parameters given in metres)"""
+        self.shared_speed = config.shared_speed / deployment.metres_per_unit
+        """``config.shared_speed`` in the deployment's units per second"""
         self.ids = [s.id for s in sensors]
         self.index = {sid: i for i, sid in enumerate(self.ids)}
         positions = np.array([(s.x, s.y) for s in sensors])

@@ -299,7 +299,7 @@ class _Scan:
             reach = float(self.grid.cell_range[self.targets[k].cell])
             other = expected[owner_of[k]]
             if (gaps[k] > c.shared_gap * reach or other.reports < c.shared_age
-                    or math.hypot(hidden.vx - other.vx, hidden.vy - other.vy) < c.shared_speed / self.grid.metres_per_unit
+                    or math.hypot(hidden.vx - other.vx, hidden.vy - other.vy) < self.grid.shared_speed
                     or self.grid.depth(hidden.x, hidden.y) < c.shared_edge * reach):
                 continue
             copied.add(k)
