@@ -23,9 +23,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from bintrack.evaluation import evaluate
+from bintrack.evaluation.eval_report import evaluate
 from bintrack.formats import open_dataset, write_dataset, write_tracks
-from bintrack.metrics import mean_ci
+from bintrack.evaluation.metrics import mean_ci
 from bintrack.pipeline import output_rows, run_tracker
 from bintrack.sim.scenarios import simulate
 from bintrack.trackers import BASELINES, TrackerOptions, make_tracker

@@ -1,7 +1,7 @@
 """What the bus costs: raw Zenoh throughput in this Python beside the services' own figures.
 
 Everything runs on loopback (127.0.0.1) through one Zenoh router embedded in this process
-(``bintrack.bus.router_config`` on a free port); the services are real subprocesses
+(``bintrack.live.bus.router_config`` on a free port); the services are real subprocesses
 (``python -m bintrack.services.<name> … -e ENDPOINT``), each on its own network name.
 
 1. **Raw Zenoh**: one client session publishes N small messages (a msgpack ``Transition``,
@@ -53,11 +53,11 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from bintrack.bus import client_config, router_config
+from bintrack.live.bus import client_config, router_config
 from bintrack.formats import open_dataset, write_dataset
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, RawSample, TrackSet, Transition, decode, encode
-from bintrack.recording import open_recording
+from bintrack.live.recording import open_recording
 from bintrack.sim.scenarios import simulate
 
 REPO = Path(__file__).resolve().parents[1]

@@ -27,7 +27,7 @@ other gate (4 / 0.999) at the best of those — 21 settings — and the lowest m
 reported. A setting that needs over 60 s of tracking time is abandoned (exact JPDA is
 exponential in the tracks sharing detections). Ours runs with its defaults throughout.
 
-Scores (``bintrack.metrics.multi_target_scores``, as ``bintrack eval``): at every scan from
+Scores (``bintrack.evaluation.metrics.multi_target_scores``, as ``bintrack eval``): at every scan from
 the first person's entry to the last one's exit (as ``benchmarks/paper004.py``), including
 scans where a tracker reports no track (all targets then count as missed),
 GOSPA with c = 10 m, p = 2, α = 2 between the tracker's tracks and the targets existing at
@@ -68,7 +68,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 DATASETS = ROOT / "datasets"
 DEFAULT_PLOT = ROOT / "docs" / "mcmcda_vs_stonesoup.png"
-GOSPA_C, GOSPA_P = 10.0, 2.0  # m; α = 2 (bintrack.metrics.gospa)
+GOSPA_C, GOSPA_P = 10.0, 2.0  # m; α = 2 (bintrack.evaluation.metrics.gospa)
 SIM_PEOPLE, SIM_PFA = 10, 0.1
 EPOCH = datetime.datetime(2000, 1, 1)
 SETTING_BUDGET = 60.0  # s of tracking time for one Stone Soup setting on one dataset
@@ -130,7 +130,7 @@ def simulate_case(seed: int, folder: Path) -> Path:
 
 def load_case(name: str, path: Path) -> Case:
     from bintrack.formats import read_truth
-    from bintrack.metrics import truth_paths
+    from bintrack.evaluation.metrics import truth_paths
 
     return Case(name, path, truth_paths(read_truth(path / "truth.csv")))
 
@@ -143,12 +143,12 @@ def run_ours(case: Case) -> None:
     time ``OnlineMCMCDA.step`` alone by replaying the same reports into a fresh instance (same
     config and seed, so it must give the same tracks)."""
     from bintrack.formats import open_dataset
-    from bintrack.fusion import FusionConfig
-    from bintrack.mcmcda import MCMCDAConfig, OnlineMCMCDA
+    from bintrack.trackers.multi.fusion import FusionConfig
+    from bintrack.trackers.multi.mcmcda import MCMCDAConfig, OnlineMCMCDA
     from bintrack.messages import PositionReports, TrackSet
     from bintrack.pipeline import run_tracker
     from bintrack.trackers import make_tracker
-    from bintrack.trackers.mcmcda import MCMCDATracker
+    from bintrack.trackers.multi.tracker import MCMCDATracker
 
     dataset = open_dataset(case.path)
     try:  # as `bintrack track DIR --tracker mcmcda` makes it, with its defaults
@@ -188,10 +188,10 @@ def run_ours(case: Case) -> None:
 def ours_over_seeds(case: Case, seeds: range) -> list[Score]:
     """Our tracker's scores with other seeds of its sampler (everything else at the defaults)."""
     from bintrack.formats import open_dataset
-    from bintrack.mcmcda import MCMCDAConfig
+    from bintrack.trackers.multi.mcmcda import MCMCDAConfig
     from bintrack.messages import TrackSet
     from bintrack.pipeline import run_tracker
-    from bintrack.trackers.mcmcda import MCMCDATracker
+    from bintrack.trackers.multi.tracker import MCMCDATracker
 
     dataset = open_dataset(case.path)
     scores = []
@@ -389,7 +389,7 @@ def score(tracks: dict, case: Case, step_s: list) -> Score:
     first person's entry to the last one's exit (as ``benchmarks/paper004.py``), scans without
     a track included, and the mean time per scan (over all scans)."""
     from bintrack.formats import TrackRow
-    from bintrack.metrics import multi_target_scores
+    from bintrack.evaluation.metrics import multi_target_scores
 
     entry = min(p.start for p in case.paths.values())
     leave = max(p.end for p in case.paths.values())

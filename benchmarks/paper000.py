@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bintrack.metrics import mean_ci
+from bintrack.evaluation.metrics import mean_ci
 
 RANGES = (50, 75, 100, 125, 150)
 QUICK_RANGES = (50, 100, 150)
@@ -72,10 +72,10 @@ def _dataset(tmp: str, trajectory: str, sensing_range: float, sectors: int, seed
 
 def _error(dataset, name: str, speed: float | None = None, radial: bool = False) -> float:
     """Mean location error / R of tracker ``name`` (the sector tracker ``radial`` if asked) on ``dataset``."""
-    from bintrack.evaluation import evaluate
+    from bintrack.evaluation.eval_report import evaluate
     from bintrack.formats import write_tracks
     from bintrack.pipeline import output_rows, run_tracker
-    from bintrack.trackers.sector import SectorTracker
+    from bintrack.trackers.arc.sector_tracker import SectorTracker
 
     tracker = SectorTracker(dataset.deployment, radial=True) if radial else _tracker(name, dataset.deployment, speed)
     tracks = dataset.path / f"{name}{'-radial' if radial else ''}.csv"
@@ -85,7 +85,7 @@ def _error(dataset, name: str, speed: float | None = None, radial: bool = False)
 
 def _messages(dataset) -> int:
     """Messages the nodes broadcast: one per transition (paper 000 §II)."""
-    from bintrack.transitions import TransitionDetector
+    from bintrack.transition_detector import TransitionDetector
 
     detector = TransitionDetector(dataset.deployment)
     return sum(detector.update(e) is not None for e in dataset.events())
@@ -165,7 +165,7 @@ def timing_run(job: tuple[str, int, int]) -> dict:
     ``REPEATS`` passes, s = 4 and 12 alternating): per message, per estimate (the calls that
     return estimates, over the estimates), in the estimate step alone, per other message (status
     updates only), and the neighbour-sector match per list (one node, one sector) and per node."""
-    from bintrack.transitions import TransitionDetector
+    from bintrack.transition_detector import TransitionDetector
 
     trajectory, sensing_range, seed = job
     passes: dict[int, list[dict[str, float]]] = {s: [] for s in SECTORS[1:]}

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bintrack.metrics import mean_ci
+from bintrack.evaluation.metrics import mean_ci
 
 RANGES = (40, 60, 80, 100, 120, 150)
 TRAJECTORIES = ("linear", "circular", "random")
@@ -57,7 +57,7 @@ MARGIN = 1.15  # ours must be ≤ paper × 1.15
 
 def one_run(job: tuple[str, str, int, int]) -> tuple[tuple[str, str, int], float, list[float]]:
     """Simulate one cell's run; the arc tracker's mean location error / R and its final arcs (rad)."""
-    from bintrack.evaluation import evaluate
+    from bintrack.evaluation.eval_report import evaluate
     from bintrack.formats import open_dataset, write_dataset, write_tracks
     from bintrack.pipeline import output_rows, run_tracker
     from bintrack.sim.scenarios import simulate

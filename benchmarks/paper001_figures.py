@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bintrack.metrics import mean_ci
+from bintrack.evaluation.metrics import mean_ci
 
 RANGES = (40, 60, 80, 100, 120, 150)
 TRACKERS = ("arc", "equal-weight", "distance-weight", "duration-weight", "line-fit")
@@ -76,7 +76,7 @@ def _dataset(tmp: str, **options):
 
 def location_job(job):
     """One run of Fig. 14/15: location error / R of every tracker on the same dataset."""
-    from bintrack.evaluation import evaluate
+    from bintrack.evaluation.eval_report import evaluate
     from bintrack.formats import write_tracks
     from bintrack.pipeline import output_rows, run_tracker
     from bintrack.trackers import TrackerOptions, make_tracker
@@ -96,7 +96,7 @@ def location_job(job):
 
 def velocity_job(job):
     """One run of §5.4: the arc tracker's |v_est − v_true| and, for the plot, its speed series."""
-    from bintrack.metrics import truth_paths, velocity_errors
+    from bintrack.evaluation.metrics import truth_paths, velocity_errors
     from bintrack.pipeline import output_rows, run_tracker
     from bintrack.trackers import make_tracker
 
@@ -115,9 +115,9 @@ def velocity_job(job):
 
 def message_job(job):
     """One run of §5.3: transitions in events.csv for a random path of length ``distance``."""
-    from bintrack.metrics import truth_paths
+    from bintrack.evaluation.metrics import truth_paths
     from bintrack.sim.scenarios import simulate
-    from bintrack.transitions import TransitionDetector
+    from bintrack.transition_detector import TransitionDetector
 
     _, distance, sensing_range, seed = job
     speed = sensing_range / 15.0

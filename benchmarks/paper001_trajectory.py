@@ -5,14 +5,14 @@ units/s, linear / circular / random-turn trajectories in the central 650 × 650 
 disks, and the imperfect model with R_out = R, R_in = 0.9 R and the first (linear) detection
 law; 10 runs (seeds 0–9) per cell. The arc tracker's estimates (``x, y, weight`` with weight eq.
 2 or 4, in time order) are turned into a trajectory by
-:func:`bintrack.trajectory_fit.trajectory_from_estimates` with k = 30, n = 6, ε = 0.2 (§3.2.4 as
+:func:`bintrack.trackers.arc.trajectory_fit.trajectory_from_estimates` with k = 30, n = 6, ε = 0.2 (§3.2.4 as
 amended in that module's docstring).
 
 Accuracy (§5.5): the area (units²) of the polygon formed by the estimated and the real
 trajectory, divided by the length (units) of the real trajectory over the same time span (first
 to last estimate). The area counts the regions the closed ring estimated + reversed(real)
 winds around (non-zero winding number, whatever its sign: a crossing of the two paths does not
-cancel area). :func:`bintrack.metrics.area_between` counts every bounded face of that ring
+cancel area). :func:`bintrack.evaluation.metrics.area_between` counts every bounded face of that ring
 instead, which for a circular trajectory of one full turn includes the disk inside the circle
 whenever the estimate's ends overlap; its figure is printed too.
 
@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import shapely
 
-from bintrack.metrics import mean_ci
+from bintrack.evaluation.metrics import mean_ci
 
 SENSING_RANGE = 40.0
 TRAJECTORIES = ("linear", "circular", "random")
@@ -80,11 +80,11 @@ def one_run(job: tuple[str, str, int]) -> dict:
     """Simulate one run, track it with ``arc``, fit the trajectory; figures and the data to plot."""
     from bintrack.formats import open_dataset, write_dataset
     from bintrack.messages import LocalEstimate
-    from bintrack.metrics import area_between, polyline_length, truth_paths
+    from bintrack.evaluation.metrics import area_between, polyline_length, truth_paths
     from bintrack.pipeline import run_tracker
     from bintrack.sim.scenarios import simulate
     from bintrack.trackers import make_tracker
-    from bintrack.trajectory_fit import trajectory_from_estimates
+    from bintrack.trackers.arc.trajectory_fit import trajectory_from_estimates
 
     trajectory, model, seed = job
     options = {"law": "linear"} if model == "imperfect" else {}

@@ -21,7 +21,7 @@ field, every sensor reporting ±1 each period P = 1 s.
 
 Per run the work is pure numpy: the label matrix (K periods × N sensors) is computed from the
 scenario's trajectory exactly as the simulator's motion model does (sign of (s − x)·v at the
-sample times), and the estimators of ``bintrack.closer_farther`` run on it; Part 2 and the
+sample times), and the estimators of ``bintrack.trackers.motion.closer_farther`` run on it; Part 2 and the
 acceptance feed the trackers transitions made from the same labels (the acceptance through the
 simulator's events and the offline driver). Progress goes to stderr.
 
@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bintrack.metrics import mean_ci
+from bintrack.evaluation.metrics import mean_ci
 
 NODES = tuple(range(10, 101, 10))
 SPEED = 2.0  # m/s
@@ -75,7 +75,7 @@ def _angle(a: float, b: float) -> float:
 
 def estimator_runs(job: tuple[int, list[int]]) -> tuple[int, dict[str, list[tuple[float, float] | None]]]:
     """Part 1 for one N and some seeds: per estimator, (heading error rad, speed error m/s) or None."""
-    from bintrack.closer_farther import ppr_fit, svm_velocity, velocity_plane
+    from bintrack.trackers.motion.closer_farther import ppr_fit, svm_velocity, velocity_plane
     from bintrack.sim.scenarios import build_scenario
 
     nodes, seeds = job
@@ -111,7 +111,7 @@ def rw_runs(seeds: list[int]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray |
     """Part 2: per seed, squared position and velocity errors by period (NaN where no estimate),
     and for the first seed the true and estimated paths (for the example plot)."""
     from bintrack.sim.scenarios import build_scenario
-    from bintrack.trackers.motion import MotionRandomWalkTracker
+    from bintrack.trackers.motion.tracker import MotionRandomWalkTracker
 
     results = []
     for seed in seeds:
@@ -141,8 +141,8 @@ def online_runs(seeds: list[int]) -> dict[str, list[tuple[float, float] | None]]
     (heading error rad, relative speed error) of its last estimate."""
     from bintrack.pipeline import TrackerDriver
     from bintrack.sim.scenarios import build_scenario, simulate
-    from bintrack.trackers.motion import MOTION_TRACKERS
-    from bintrack.transitions import TransitionDetector
+    from bintrack.trackers.motion.tracker import MOTION_TRACKERS
+    from bintrack.transition_detector import TransitionDetector
 
     out: dict[str, list] = {name: [] for name in TRACKERS}
     for seed in seeds:
@@ -177,7 +177,7 @@ def window_runs(seeds: list[int]) -> dict[tuple[str, int | None], list[tuple[flo
     (window None) against the last 10: per run, the RMS heading error (rad) and velocity error
     (m/s) of the estimates from t = 20 s on."""
     from bintrack.sim.scenarios import build_scenario
-    from bintrack.trackers.motion import MOTION_TRACKERS
+    from bintrack.trackers.motion.tracker import MOTION_TRACKERS
 
     out: dict[tuple[str, int | None], list] = {}
     for seed in seeds:
@@ -418,7 +418,7 @@ def plot_staircase(out: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from bintrack.closer_farther import counters, velocity_plane
+    from bintrack.trackers.motion.closer_farther import counters, velocity_plane
     from bintrack.sim.scenarios import build_scenario
 
     scenario = build_scenario("motion", 0, nodes=100, trajectory="constant", speed=SPEED, duration=DURATION,

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bintrack.adaptive_basis import (
+from bintrack.trackers.laser.adaptive_basis import (
     AdaptiveBasis,
     DegenerateError,
     border_times,
@@ -38,7 +38,7 @@ from bintrack.adaptive_basis import (
     parameter_error,
     passage_scene,
 )
-from bintrack.metrics import mean_ci
+from bintrack.evaluation.metrics import mean_ci
 
 SUCCESS_JP = 1e-8
 ZERO_COST = 1e-16  # eq. 5 at rounding level: a zero of the cost
@@ -167,10 +167,10 @@ def fig7_run(job: tuple[int, int]) -> dict:
 def testbed(folder: Path) -> dict:
     """The streaming tracker on the shipped testbed: estimates, errors and what the plots need."""
     from bintrack.formats import open_dataset
-    from bintrack.metrics import entry_exit_errors, truth_paths
+    from bintrack.evaluation.metrics import entry_exit_errors, truth_paths
     from bintrack.pipeline import output_objects, run_tracker
     from bintrack.sim.scenarios import simulate, build_scenario
-    from bintrack.trackers.adaptive_basis import AdaptiveBasisTracker
+    from bintrack.trackers.laser.tracker import AdaptiveBasisTracker
 
     dataset = open_dataset(folder)
     tracker = AdaptiveBasisTracker(dataset.deployment)

@@ -11,7 +11,7 @@ track is matched to no person within c = 10 m), identity switches (CLEAR MOT mis
 ``metrics.multi_target_scores``), mean GOSPA (c = 10 m, p = 2, α = 2) and the time per scan.
 The paper reports, for one to three people, the right number of targets, crossing people
 disambiguated and no spurious track. Each dataset runs with our default fusion ("fit":
-targets fitted to each scan by eq. (4), helped by the tracks, ``bintrack.target_fit``) and
+targets fitted to each scan by eq. (4), helped by the tracks, ``bintrack.trackers.multi.target_fit``) and
 with the paper's (cells clustered around seeds; a cell is computed only when its own sensor
 detects). It writes a Fig. 6-like plot per dataset (detections, fused
 likelihood, tracks; default fusion) into ``--out``. Then it runs our fusion again with sampler
@@ -33,12 +33,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bintrack.formats import TrackRow, open_dataset  # noqa: E402
-from bintrack.metrics import multi_target_scores, truth_paths  # noqa: E402
-from bintrack.fusion import FusionConfig  # noqa: E402
-from bintrack.mcmcda import MCMCDAConfig  # noqa: E402
+from bintrack.evaluation.metrics import multi_target_scores, truth_paths  # noqa: E402
+from bintrack.trackers.multi.fusion import FusionConfig  # noqa: E402
+from bintrack.trackers.multi.mcmcda import MCMCDAConfig  # noqa: E402
 from bintrack.messages import PositionReports, TrackSet  # noqa: E402
 from bintrack.pipeline import run_tracker  # noqa: E402
-from bintrack.trackers.mcmcda import MCMCDATracker  # noqa: E402
+from bintrack.trackers.multi.tracker import MCMCDATracker  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DATASETS = [REPO / "datasets" / f"darpa-grid-{n}" for n in (1, 2, 3)]
@@ -93,7 +93,7 @@ def evaluate(folder: Path, seed: int, out: Path | None, fusion: FusionConfig = F
 
 def plot(dataset, tracker: MCMCDATracker, reports, tracksets, paths, png: Path) -> None:
     """Fig. 6 of paper 004: detections at the busiest scan, the fused likelihood there, all tracks."""
-    from bintrack.transitions import TransitionDetector
+    from bintrack.transition_detector import TransitionDetector
 
     grid = tracker.fusion.grid
     scan_t = max(reports, key=lambda r: len(r.reports)).t if reports else 0.0

@@ -23,13 +23,13 @@ from pathlib import Path
 
 import zenoh
 
-from bintrack.bus import router_config
+from bintrack.live.bus import router_config
 from bintrack.formats import open_dataset, write_dataset
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, decode
 from bintrack.pipeline import run_tracker
 from bintrack.sim.scenarios import simulate
-from bintrack.stack import stack_commands
+from bintrack.live.stack import stack_commands
 from bintrack.trackers import make_tracker
 
 

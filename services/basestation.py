@@ -23,15 +23,15 @@ from operator import attrgetter
 import zenoh
 
 from bintrack.argtypes import positive_float
-from bintrack.bus import add_bus_arguments, service_main
+from bintrack.live.bus import add_bus_arguments, service_main
 from bintrack.errors import CommandError
 from bintrack.messages import (Clock, LineObjectEstimate, LocalEstimate, Message, PositionReports, Track, TrackSet,
                                VelocityEstimate, encode)
 from bintrack.ordering import ReorderBuffer
 from bintrack.pipeline import SINGLE_TARGET_TRACK
-from bintrack.track_command import add_tracker_arguments, tracker_options
+from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_options
 from bintrack.trackers import TRACKER_NAMES, check_options, make_tracker, runs_on_peers
-from bintrack.transition_intake import TransitionConsumer
+from bintrack.live.transition_intake import TransitionConsumer
 
 
 class Basestation(TransitionConsumer):

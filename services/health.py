@@ -13,8 +13,8 @@ import asyncio
 import logging
 import sys
 
-from bintrack.bus import add_bus_arguments
-from bintrack.client import BintrackClient
+from bintrack.live.bus import add_bus_arguments
+from bintrack.live.network_client import BintrackClient
 from bintrack.keys import Keys
 
 CONNECT_WAIT = 5.0

@@ -12,12 +12,12 @@ import argparse
 import sys
 
 from bintrack.argtypes import positive_float
-from bintrack.bus import add_bus_arguments, service_main
+from bintrack.live.bus import add_bus_arguments, service_main
 from bintrack.messages import LocalEstimate
 from bintrack.errors import CommandError
-from bintrack.track_command import add_tracker_arguments, tracker_options
+from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_options
 from bintrack.trackers import PEER_TRACKERS, make_tracker
-from bintrack.transition_intake import TransitionConsumer
+from bintrack.live.transition_intake import TransitionConsumer
 
 
 class PeerAgent(TransitionConsumer):

@@ -7,7 +7,7 @@ Why MCAP: it is how pub/sub systems record their buses (ROS 2 bags, Foxglove): o
 topic — here per key expression — with a schema per message type (the pydantic JSON Schema,
 payloads kept as the msgpack bytes that were on the bus), indexed by time, readable by
 Foxglove and the ``mcap`` CLI. The chunked writer leaves a readable prefix if the recorder
-dies; a stop by SIGINT/SIGTERM finalises the file. Layout: :mod:`bintrack.recording`.
+dies; a stop by SIGINT/SIGTERM finalises the file. Layout: :mod:`bintrack.live.recording`.
 
 It waits for the ``deployment`` queryable and stores the deployment, subscribes to
 ``bintrack/<net>/**`` and records every valid message but ``control/progress/**``, with its
@@ -28,10 +28,10 @@ from pathlib import Path
 
 import zenoh
 
-from bintrack.bus import Service, UpstreamDone, add_bus_arguments, service_main
+from bintrack.live.bus import Service, UpstreamDone, add_bus_arguments, service_main
 from bintrack.errors import CommandError
 from bintrack.keys import parse_key
-from bintrack.recording import KIND_TYPES, RecordingWriter, event_time
+from bintrack.live.recording import KIND_TYPES, RecordingWriter, event_time
 
 log = logging.getLogger("bintrack")
 

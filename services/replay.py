@@ -5,7 +5,7 @@
         [-m MODE] [-e ENDPOINT]… [-l ENDPOINT]… [-c FILE] [--cfg KEY:VALUE]… [--net NAME]
 
 Serves the ``deployment`` queryable, waits for the ``--wait-for`` services, then executes
-:func:`bintrack.replay_schedule.schedule`: a dataset's events as ``RawSample`` on
+:func:`bintrack.live.replay_schedule.schedule`: a dataset's events as ``RawSample`` on
 ``raw/<sensor>``, a recording's samples on their recorded keys with the payload bytes
 unchanged; ``Clock`` ticks on ``clock``, each published only once every live consumer (any
 service holding an ``alive/`` token, replays excepted) has reported progress up to the tick
@@ -25,13 +25,13 @@ from pathlib import Path
 import zenoh
 
 from bintrack.argtypes import int_at_least, non_negative_float, positive_float
-from bintrack.bus import Service, add_bus_arguments, service_main
+from bintrack.live.bus import Service, add_bus_arguments, service_main
 from bintrack.errors import CommandError
 from bintrack.formats import FormatError, open_dataset
 from bintrack.keys import Keys, parse_key
 from bintrack.messages import Clock, EndOfStream, RawSample, encode
-from bintrack.recording import Record, open_recording, replay_items, shift_payload
-from bintrack.replay_schedule import Consumers, End, Pacer, Publish, Tick, schedule
+from bintrack.live.recording import Record, open_recording, replay_items, shift_payload
+from bintrack.live.replay_schedule import Consumers, End, Pacer, Publish, Tick, schedule
 
 log = logging.getLogger("bintrack")
 

@@ -16,11 +16,11 @@ from collections import deque
 
 import zenoh
 
-from bintrack.bus import Service, add_bus_arguments, log, service_main
+from bintrack.live.bus import Service, add_bus_arguments, log, service_main
 from bintrack.formats import Event, check_value
 from bintrack.keys import parse_key
 from bintrack.messages import Clock, EndOfStream, RawSample, SensorState, Transition, encode
-from bintrack.transitions import TransitionDetector
+from bintrack.transition_detector import TransitionDetector
 
 HISTORY = 256  # transitions kept per sensor for gap repair
 QUEUE = 1024  # raw samples queued per sensor

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from bintrack.adaptive_basis import (
+from bintrack.trackers.laser.adaptive_basis import (
     AdaptiveBasis,
     DegenerateError,
     Frame,
@@ -23,11 +23,11 @@ from bintrack.adaptive_basis import (
 from bintrack.errors import CommandError
 from bintrack.formats import ObjectRow, open_dataset
 from bintrack.messages import Calibration, Deployment, DiskSensor, LineObjectEstimate, LineSensor, Region
-from bintrack.metrics import entry_exit_errors, truth_paths
+from bintrack.evaluation.metrics import entry_exit_errors, truth_paths
 from bintrack.pipeline import TrackerDriver, output_objects, run_tracker
 from bintrack.sim.scenarios import build_scenario
-from bintrack.trackers.adaptive_basis import AdaptiveBasisTracker
-from bintrack.transitions import TransitionDetector
+from bintrack.trackers.laser.tracker import AdaptiveBasisTracker
+from bintrack.transition_detector import TransitionDetector
 
 from conftest import REPO
 

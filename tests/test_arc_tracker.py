@@ -6,15 +6,15 @@ from collections.abc import Iterable
 import numpy as np
 import pytest
 
-from bintrack.evaluation import evaluate
+from bintrack.evaluation.eval_report import evaluate
 from bintrack.formats import open_dataset, write_dataset, write_tracks
 from bintrack.geometry import TWO_PI, circle_circle_angles
 from bintrack.messages import Deployment, LocalEstimate, Transition
 from bintrack.pipeline import output_rows, run_tracker
 from bintrack.sim.scenarios import simulate
 from bintrack.trackers import TRACKER_NAMES, make_tracker
-from bintrack.arcs import ArcSet
-from bintrack.trackers.arc import ArcTracker, absence_half_angle, counter_deletion, presence_half_angle
+from bintrack.trackers.arc.arcs import ArcSet
+from bintrack.trackers.arc.arc_tracker import ArcTracker, absence_half_angle, counter_deletion, presence_half_angle
 
 
 def deployment(nodes: dict[str, tuple[float, float]], sensing_range: float = 1.0) -> Deployment:

@@ -1,11 +1,11 @@
-"""The arc algebra of bintrack.arcs, checked against a dense sampling of the circle."""
+"""The arc algebra of bintrack.trackers.arc.arcs, checked against a dense sampling of the circle."""
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bintrack.arcs import TOL, Arc, ArcSet, depth_extreme, overlap_matrix
+from bintrack.trackers.arc.arcs import TOL, Arc, ArcSet, depth_extreme, overlap_matrix
 from bintrack.geometry import TWO_PI
 
 # Sample points offset from any "nice" angle so they do not land on generated endpoints.

@@ -1,4 +1,4 @@
-"""Paper 001 §4: the analytic accuracy limits (``bintrack.bounds``) and ``bintrack bounds``."""
+"""Paper 001 §4: the analytic accuracy limits (``bintrack.trackers.arc.bounds``) and ``bintrack bounds``."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import math
 import pytest
 from scipy.stats import binom
 
-from bintrack import bounds
-from bintrack.cli import main
+from bintrack.trackers.arc import bounds
+from bintrack.cli.main import main
 
 N, AREA, R = 800, 400.0, 1.0  # the §4 example: 800 nodes on 20 × 20, unit range
 

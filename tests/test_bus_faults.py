@@ -27,7 +27,7 @@ import msgpack
 import pytest
 import zenoh
 
-from bintrack.bus import client_config, router_config
+from bintrack.live.bus import client_config, router_config
 from bintrack.formats import open_dataset
 from bintrack.keys import Keys, parse_key
 from bintrack.messages import (
@@ -42,7 +42,7 @@ from bintrack.messages import (
     decode,
     encode,
 )
-from bintrack.recording import KIND_TYPES, open_recording
+from bintrack.live.recording import KIND_TYPES, open_recording
 
 from conftest import free_port, write_foreign_dataset
 

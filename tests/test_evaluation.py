@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from bintrack import cli
+from bintrack.cli import main as cli
 from bintrack.errors import CommandError
-from bintrack.evaluation import evaluate
+from bintrack.evaluation.eval_report import evaluate
 from bintrack.formats import Event, ObjectRow, TrackRow, TruthRow, write_dataset, write_objects, write_tracks
 from bintrack.messages import Deployment
 
@@ -206,7 +206,7 @@ def test_an_empty_result_scores_nothing_without_failing(capsys, multi, tmp_path)
 
 
 def test_detections_and_a_plot_without_truth_or_error_panel(tmp_path):
-    from bintrack.plotting import detected_sensors, plot_scene
+    from bintrack.evaluation.plotting import detected_sensors, plot_scene
 
     sensors = [{"id": f"n{i}", "kind": "disk", "x": i % 20 * 5, "y": i // 20 * 5, "range": 4} for i in range(200)]
     sensors += [{"id": "s", "kind": "sector", "x": 50, "y": 50, "range": 4, "sectors": 6},

@@ -3,7 +3,7 @@ from pathlib import Path
 
 import pytest
 
-from bintrack import cli
+from bintrack.cli import main as cli
 from bintrack.formats import (
     Event,
     FormatError,

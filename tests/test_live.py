@@ -12,8 +12,8 @@ import pytest
 import yaml
 import zenoh
 
-from bintrack import cli
-from bintrack.bus import client_config, router_config
+from bintrack.cli import main as cli
+from bintrack.live.bus import client_config, router_config
 from bintrack.formats import (
     TruthRow,
     open_dataset,
@@ -24,11 +24,11 @@ from bintrack.formats import (
 from bintrack.keys import Keys
 from bintrack.messages import Clock, EndOfStream, decode, encode
 from bintrack.pipeline import output_rows, run_tracker
-from bintrack.recording import open_recording
-from bintrack.export_command import track_rows
-from bintrack.stack import stack_commands
+from bintrack.live.recording import open_recording
+from bintrack.cli.export_command import track_rows
+from bintrack.live.stack import stack_commands
 from bintrack.trackers import BASELINES, make_tracker
-from bintrack.transitions import TransitionDetector
+from bintrack.transition_detector import TransitionDetector
 
 from conftest import REPO, free_port
 

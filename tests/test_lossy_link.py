@@ -14,13 +14,14 @@ from pathlib import Path
 
 import pytest
 
-from bintrack.export_command import track_rows
+from bintrack.cli.export_command import track_rows
 from bintrack.formats import open_dataset
 from bintrack.messages import Transition, decode
 from bintrack.pipeline import output_rows, run_tracker
-from bintrack.recording import open_recording
+from bintrack.live.recording import open_recording
 from bintrack.trackers import make_tracker
-from bintrack.transitions import SequenceCheck, SourceCheck, TransitionDetector
+from bintrack.live.sequence_checks import SequenceCheck, SourceCheck
+from bintrack.transition_detector import TransitionDetector
 
 from conftest import REPO, write_foreign_dataset
 

@@ -9,10 +9,10 @@ import pytest
 
 from bintrack.errors import CommandError
 from bintrack.formats import Dataset, TrackRow, open_dataset
-from bintrack.fusion import FusionConfig, GridFusion, ScanFusion
-from bintrack.mcmcda import MCMCDAConfig, OnlineMCMCDA
+from bintrack.trackers.multi.fusion import FusionConfig, GridFusion, ScanFusion
+from bintrack.trackers.multi.mcmcda import MCMCDAConfig, OnlineMCMCDA
 from bintrack.messages import Deployment, DiskSensor, MotionSensor, PositionReport, PositionReports, Region, Transition, TrackSet
-from bintrack.metrics import multi_target_scores, truth_paths
+from bintrack.evaluation.metrics import multi_target_scores, truth_paths
 from bintrack.pipeline import run_tracker
 from bintrack.trackers import TrackerOptions, make_tracker
 

@@ -3,7 +3,7 @@ import json
 import msgpack
 import pytest
 
-from bintrack import cli
+from bintrack.cli import main as cli
 from bintrack.messages import (
     MESSAGE_TYPES,
     Clock,

@@ -1,4 +1,4 @@
-"""Metrics of bintrack.metrics on hand-computed cases."""
+"""Metrics of bintrack.evaluation.metrics on hand-computed cases."""
 
 import math
 
@@ -7,7 +7,7 @@ import pytest
 
 from bintrack.formats import ObjectRow, TrackRow, TruthRow
 from bintrack.messages import Deployment
-from bintrack.metrics import (
+from bintrack.evaluation.metrics import (
     ErrorStats,
     area_between,
     entry_exit_errors,
@@ -228,7 +228,7 @@ def test_one_target_is_matched_to_one_object_only():
 
 
 def test_mean_ci_is_the_student_t_interval():
-    from bintrack.metrics import mean_ci
+    from bintrack.evaluation.metrics import mean_ci
 
     mean, half = mean_ci([1.0, 2.0, 3.0, 4.0])
     assert mean == 2.5

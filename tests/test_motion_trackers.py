@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from bintrack.closer_farther import (
+from bintrack.trackers.motion.closer_farther import (
     counters,
     ppr_direction,
     ppr_fit,
@@ -19,14 +19,14 @@ from bintrack.errors import CommandError
 from bintrack.messages import Deployment, MotionSensor, Region, Transition, VelocityEstimate
 from bintrack.pipeline import TrackerDriver
 from bintrack.sim.scenarios import build_scenario, simulate
-from bintrack.trackers.motion import (
+from bintrack.trackers.motion.tracker import (
     MOTION_TRACKERS,
     MotionRandomWalkTracker,
     PprTracker,
     SvmTracker,
     VelocityPlaneTracker,
 )
-from bintrack.transitions import TransitionDetector
+from bintrack.transition_detector import TransitionDetector
 
 
 def _angle_error(a: float, b: float) -> float:

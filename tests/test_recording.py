@@ -12,8 +12,8 @@ import pytest
 import zenoh
 from mcap.reader import make_reader
 
-from bintrack.bus import client_config
-from bintrack import cli
+from bintrack.live.bus import client_config
+from bintrack.cli import main as cli
 from bintrack.formats import FormatError, ObjectRow, TrackRow, read_objects, read_tracks
 from bintrack.messages import (
     Clock,
@@ -30,7 +30,7 @@ from bintrack.messages import (
     encode,
     json_schema,
 )
-from bintrack.recording import RecordingWriter, log_time_ns, open_recording, replay_items, shift_payload
+from bintrack.live.recording import RecordingWriter, log_time_ns, open_recording, replay_items, shift_payload
 
 def output(process) -> str:
     """What a service process has logged so far (also after it exited)."""

@@ -13,11 +13,11 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from bintrack.bus import client_config, router_config
+from bintrack.live.bus import client_config, router_config
 from bintrack.formats import Event, open_dataset, write_dataset
 from bintrack.messages import Clock, Deployment, DiskSensor, EndOfStream, RawSample, Region, decode, encode
-from bintrack.recording import open_recording
-from bintrack.replay_schedule import Consumers, End, NothingToReplay, Pacer, Publish, Tick, schedule
+from bintrack.live.recording import open_recording
+from bintrack.live.replay_schedule import Consumers, End, NothingToReplay, Pacer, Publish, Tick, schedule
 
 from conftest import REPO, free_port
 

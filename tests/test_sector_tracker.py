@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from bintrack.arcs import ArcSet
-from bintrack.evaluation import evaluate
+from bintrack.trackers.arc.arcs import ArcSet
+from bintrack.evaluation.eval_report import evaluate
 from bintrack.formats import open_dataset, write_dataset, write_tracks
 from bintrack.geometry import TWO_PI
 from bintrack.messages import Deployment, Transition
@@ -16,7 +16,7 @@ from bintrack.sim import trajectories
 from bintrack.sim.scenarios import simulate
 from bintrack.sim.transitions import exact_transitions
 from bintrack.trackers import TRACKER_NAMES, make_tracker
-from bintrack.trackers.sector import (
+from bintrack.trackers.arc.sector_tracker import (
     SectorTracker,
     crossed_boundary,
     match_angles,
@@ -25,7 +25,7 @@ from bintrack.trackers.sector import (
     sector_arc,
     status_bits,
 )
-from bintrack.transitions import TransitionDetector
+from bintrack.transition_detector import TransitionDetector
 
 SECTOR_COUNTS = (1, 2, 3, 4, 6, 12)
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bintrack.cli import main
+from bintrack.cli.main import main
 from bintrack.formats import Event, open_dataset
 from bintrack.messages import DiskSensor, LineSensor, MotionSensor, Region, SectorSensor
 from bintrack.sensing import model_for

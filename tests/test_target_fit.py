@@ -1,4 +1,4 @@
-"""The fitted fusion (bintrack.target_fit): targets fitted to a scan by eq. (4), helped by tracks."""
+"""The fitted fusion (bintrack.trackers.multi.target_fit): targets fitted to a scan by eq. (4), helped by tracks."""
 
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ import math
 
 import numpy as np
 
-from bintrack.fusion import FusionConfig, GridFusion
-from bintrack.mcmcda import MCMCDAConfig, OnlineMCMCDA
+from bintrack.trackers.multi.fusion import FusionConfig, GridFusion
+from bintrack.trackers.multi.mcmcda import MCMCDAConfig, OnlineMCMCDA
 from bintrack.messages import Deployment, DiskSensor, PositionReport, PositionReports, Region
-from bintrack.target_fit import Expectation
+from bintrack.trackers.multi.target_fit import Expectation
 
 from test_mcmcda import detecting_near, grid_deployment
 

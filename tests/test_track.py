@@ -4,12 +4,12 @@ import math
 
 import pytest
 
-from bintrack import cli
+from bintrack.cli import main as cli
 from bintrack.formats import Event, open_dataset, read_tracks, read_truth
 from bintrack.messages import Deployment, Transition
 from bintrack.pipeline import output_rows, run_tracker
 from bintrack.trackers import BASELINES, make_tracker
-from bintrack.transitions import TransitionDetector
+from bintrack.transition_detector import TransitionDetector
 
 from conftest import write_foreign_dataset
 

@@ -3,8 +3,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bintrack.metrics import area_between, polyline_length
-from bintrack.trajectory_fit import TrajectoryFitter, fit_line, fit_trajectory, segment_groups, trajectory_from_estimates
+from bintrack.evaluation.metrics import area_between, polyline_length
+from bintrack.trackers.arc.trajectory_fit import TrajectoryFitter, fit_line, fit_trajectory, segment_groups, trajectory_from_estimates
 
 
 def test_weighted_line_ignores_a_down_weighted_outlier():

@@ -3,7 +3,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bintrack.velocity import LocalClock, VelocityEstimator
+from bintrack.trackers.arc.velocity import LocalClock, VelocityEstimator
 
 
 def feed(estimator, clock, points, arcs):
@@ -73,7 +73,7 @@ def _arc_rows(**clock):
 
 
 def test_arc_tracker_velocity_in_the_paper_setting_and_without_clock_synchronisation():
-    from bintrack.metrics import truth_paths, velocity_errors
+    from bintrack.evaluation.metrics import truth_paths, velocity_errors
 
     truth, rows = _arc_rows()
     with_velocity = [r for r in rows if r.vx is not None]

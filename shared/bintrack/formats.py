@@ -18,7 +18,7 @@ from typing import IO, NamedTuple, TextIO
 
 from pydantic import ValidationError
 
-from .messages import (
+from bintrack.messages import (
     Deployment,
     DiskSensor,
     LineSensor,

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .messages import check_sensor_id
+from bintrack.messages import check_sensor_id
 
 ROOT = "bintrack"
 

@@ -6,11 +6,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Iterator
 
-from .formats import Dataset, ObjectRow, TrackRow
-from .messages import LineObjectEstimate, LocalEstimate, Message, Transition, TrackSet, VelocityEstimate
-from .ordering import ReorderBuffer
-from .trackers import Tracker
-from .transitions import TransitionDetector
+from bintrack.formats import Dataset, ObjectRow, TrackRow
+from bintrack.messages import LineObjectEstimate, LocalEstimate, Message, Transition, TrackSet, VelocityEstimate
+from bintrack.ordering import ReorderBuffer
+from bintrack.trackers import Tracker
+from bintrack.transition_detector import TransitionDetector
 
 SINGLE_TARGET_TRACK = 0
 

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import TWO_PI, normalize_angle
-from .messages import DiskSensor, LineSensor, MotionSensor, SectorSensor
+from bintrack.geometry import TWO_PI, normalize_angle
+from bintrack.messages import DiskSensor, LineSensor, MotionSensor, SectorSensor
 
 # Paper 001 §5.2: the exponential law falls to 0.01 % at R_out.
 EXPONENTIAL_FLOOR = 1e-4

@@ -1,10 +1,10 @@
 """The pure simulator: sensor layouts, target trajectories, exact transitions, periodic sampling,
 faults and the named scenarios of the papers. Deterministic given a seed; no I/O (the
-``bintrack simulate`` command in :mod:`bintrack.sim.command` writes the files)."""
+``bintrack simulate`` command in :mod:`bintrack.cli.simulate_command` writes the files)."""
 
-from .engine import Scenario, SimResult, simulate_scenario, truth_rows
-from .scenarios import SCENARIOS, ScenarioError, build_scenario, scenario_options, simulate
-from .trajectories import ArcSegment, LinearSegment, Trajectory
+from bintrack.sim.engine import Scenario, SimResult, simulate_scenario, truth_rows
+from bintrack.sim.scenarios import SCENARIOS, ScenarioError, build_scenario, scenario_options, simulate
+from bintrack.sim.trajectories import ArcSegment, LinearSegment, Trajectory
 
 __all__ = [
     "SCENARIOS",

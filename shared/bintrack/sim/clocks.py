@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..messages import DiskSensor, SectorSensor
+from bintrack.messages import DiskSensor, SectorSensor
 
 
 def assign_clocks(sensors: Sequence[DiskSensor | SectorSensor], rng: np.random.Generator,

@@ -14,12 +14,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..formats import Event, TruthRow
-from ..messages import Deployment, DiskSensor, LineSensor, MotionSensor, SectorSensor
-from .faults import packet_faults, wrong_reports
-from .sampling import periodic_events
-from .trajectories import Trajectory
-from .transitions import beam_crossings, exact_transitions
+from bintrack.formats import Event, TruthRow
+from bintrack.messages import Deployment, DiskSensor, LineSensor, MotionSensor, SectorSensor
+from bintrack.sim.faults import packet_faults, wrong_reports
+from bintrack.sim.sampling import periodic_events
+from bintrack.sim.trajectories import Trajectory
+from bintrack.sim.transitions import beam_crossings, exact_transitions
 
 FAULTS = ("none", "collision", "wrong", "both")
 

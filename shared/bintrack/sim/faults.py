@@ -18,7 +18,7 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..formats import Event
+from bintrack.formats import Event
 
 MISS_ARRIVAL = 0.05
 MISS_DEPARTURE = 0.01

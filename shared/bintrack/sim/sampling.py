@@ -14,10 +14,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..formats import Event, idle_value
-from ..messages import DiskSensor, MotionSensor, SectorSensor
-from ..sensing import DiskModel, MotionModel, SectorModel, model_for
-from .trajectories import Trajectory
+from bintrack.formats import Event, idle_value
+from bintrack.messages import DiskSensor, MotionSensor, SectorSensor
+from bintrack.sensing import DiskModel, MotionModel, SectorModel, model_for
+from bintrack.sim.trajectories import Trajectory
 
 
 def sample_times(phase: float, period: float, t_start: float, t_end: float) -> np.ndarray:

@@ -14,11 +14,11 @@ import math
 
 import numpy as np
 
-from ..messages import Calibration, CalibrationPass, Deployment, LineSensor, Region
-from . import deployments, trajectories
-from .clocks import assign_clocks
-from .engine import FAULTS, Progress, Scenario, SimResult, simulate_scenario
-from .trajectories import Trajectory
+from bintrack.messages import Calibration, CalibrationPass, Deployment, LineSensor, Region
+from bintrack.sim import deployments, trajectories
+from bintrack.sim.clocks import assign_clocks
+from bintrack.sim.engine import FAULTS, Progress, Scenario, SimResult, simulate_scenario
+from bintrack.sim.trajectories import Trajectory
 
 
 class ScenarioError(ValueError):

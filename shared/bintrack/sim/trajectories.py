@@ -16,8 +16,8 @@ from typing import Union
 
 import numpy as np
 
-from .. import geometry
-from ..messages import Region
+from bintrack import geometry
+from bintrack.messages import Region
 
 
 @dataclass(frozen=True)

@@ -14,10 +14,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..formats import Event, idle_value
-from ..messages import DiskSensor, LineSensor, SectorSensor
-from ..sensing import DiskModel, LineModel, SectorModel, model_for
-from .trajectories import Trajectory
+from bintrack.formats import Event, idle_value
+from bintrack.messages import DiskSensor, LineSensor, SectorSensor
+from bintrack.sensing import DiskModel, LineModel, SectorModel, model_for
+from bintrack.sim.trajectories import Trajectory
 
 
 def inside_intervals(trajectory: Trajectory, centre, radius: float,

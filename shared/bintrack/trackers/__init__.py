@@ -10,15 +10,15 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
-from ..mcmcda import MCMCDAConfig
-from ..messages import Deployment
-from .adaptive_basis import AdaptiveBasisTracker
-from .arc import ArcTracker
-from .base import Tracker
-from .baselines import LineFitTracker, WeightedCentroidTracker
-from .mcmcda import MCMCDATracker
-from .motion import MotionRandomWalkTracker, PprTracker, SvmTracker, VelocityPlaneTracker
-from .sector import SectorTracker
+from bintrack.trackers.multi.mcmcda import MCMCDAConfig
+from bintrack.messages import Deployment
+from bintrack.trackers.laser.tracker import AdaptiveBasisTracker
+from bintrack.trackers.arc.arc_tracker import ArcTracker
+from bintrack.trackers.base import Tracker
+from bintrack.trackers.arc.baselines import LineFitTracker, WeightedCentroidTracker
+from bintrack.trackers.multi.tracker import MCMCDATracker
+from bintrack.trackers.motion.tracker import MotionRandomWalkTracker, PprTracker, SvmTracker, VelocityPlaneTracker
+from bintrack.trackers.arc.sector_tracker import SectorTracker
 
 
 @dataclass(frozen=True)

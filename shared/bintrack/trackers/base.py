@@ -7,9 +7,9 @@ from typing import Protocol
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..messages import Deployment, DiskSensor, LocalEstimate, SectorSensor, Transition
-from ..errors import CommandError
-from ..sensing import reports_presence
+from bintrack.messages import Deployment, DiskSensor, LocalEstimate, SectorSensor, Transition
+from bintrack.errors import CommandError
+from bintrack.sensing import reports_presence
 
 
 class Tracker(Protocol):

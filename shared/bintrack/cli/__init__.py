@@ -1,0 +1,1 @@
+"""The ``bintrack`` command line (DESIGN §7): :mod:`.main` and one module per subcommand."""

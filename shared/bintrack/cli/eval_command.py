@@ -1,0 +1,39 @@
+"""``bintrack eval DIR RESULT [--plot PNG]``: score a result (tracks.csv or objects.csv) against
+the dataset's truth.csv and print the figures (:mod:`bintrack.evaluation.eval_report`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from bintrack.argtypes import positive_float
+from bintrack.errors import CommandError
+from bintrack.evaluation.eval_report import DEFAULT_GOSPA_C, evaluate
+from bintrack.formats import open_dataset
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("dir", metavar="DIR", help="dataset folder (deployment.json, events.csv, truth.csv)")
+    parser.add_argument("result", metavar="RESULT", help="tracks.csv or objects.csv to score")
+    parser.add_argument("--plot", metavar="PNG", help="also write a PNG of sensors, detections, tracks and truth")
+    parser.add_argument("--gospa-c", type=positive_float, default=DEFAULT_GOSPA_C, metavar="C",
+                        help=f"GOSPA cut-off in the dataset's units (default {DEFAULT_GOSPA_C:g})")
+    parser.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+
+def run(args: argparse.Namespace) -> int:
+    dataset = open_dataset(args.dir)
+    evaluation = evaluate(dataset, args.result, gospa_c=args.gospa_c)
+    if args.json:
+        print(json.dumps(evaluation.as_dict()))
+    else:
+        print("\n".join(evaluation.lines()))
+    if args.plot:
+        from bintrack.evaluation.plotting import plot_evaluation  # matplotlib only when a plot is asked for
+
+        try:
+            written = plot_evaluation(args.plot, dataset, evaluation)
+        except OSError as exc:
+            raise CommandError(f"cannot write plot {args.plot}: {exc.strerror or exc}") from None
+        if not args.json:
+            print(f"plot written to {written}")
+    return 0

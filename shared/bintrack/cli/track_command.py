@@ -1,0 +1,45 @@
+"""``bintrack track DIR --tracker NAME [--out FILE]``: the offline runner. Trackers of line
+sensors write objects.csv, the others tracks.csv (DESIGN §6)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from bintrack.argtypes import positive_float
+from bintrack.errors import CommandError
+from bintrack.formats import open_dataset, write_objects, write_tracks
+from bintrack.pipeline import output_objects, output_rows, run_tracker
+from bintrack.cli.progress import Progress
+from bintrack.trackers import OBJECT_TRACKERS, TRACKER_NAMES, make_tracker
+from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_options
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("dataset", metavar="DIR", help="dataset folder (deployment.json, events.csv)")
+    parser.add_argument("--tracker", required=True, choices=TRACKER_NAMES, help="tracker name")
+    parser.add_argument("--out", help="tracks.csv (objects.csv for adaptive-basis) to write "
+                        "(default: tracks.csv or objects.csv; '-' for stdout)")
+    parser.add_argument("--speed", type=positive_float, help="target speed, units/s, for distance-weight and line-fit, and mcmcda's fastest target "
+                        "(default: estimated from detection durations)")
+    add_tracker_arguments(parser)
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                        help="show progress on stderr (default: when stderr is a terminal)")
+
+def run(args: argparse.Namespace) -> int:
+    dataset = open_dataset(args.dataset)
+    try:
+        tracker = make_tracker(args.tracker, dataset.deployment, tracker_options(args))
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
+    objects = args.tracker in OBJECT_TRACKERS
+    out = args.out or ("objects.csv" if objects else "tracks.csv")
+    progress = Progress(f"track {args.tracker}", enabled=args.progress)
+    outputs = run_tracker(dataset, tracker, on_event=progress.update)
+    target = sys.stdout if out == "-" else out
+    try:
+        count = write_objects(target, output_objects(outputs)) if objects else write_tracks(target, output_rows(outputs))
+    finally:
+        progress.close()
+    print(f"{count} {'objects' if objects else 'estimates'} by {args.tracker} written to {out}", file=sys.stderr)
+    return 0

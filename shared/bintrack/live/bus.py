@@ -1,0 +1,454 @@
+"""The Zenoh side of bintrack: session options, the bounded bridge from Zenoh's threads to
+asyncio, and the runtime every service shares (liveliness, bad payloads, progress, shutdown).
+
+Zenoh callbacks run on Zenoh's threads; they must neither block nor call the Zenoh API
+(DESIGN §3). A service subscribes once, to its whole network, so that each publisher's
+messages reach it in the order they were sent (see :meth:`Service.subscribe`), and the
+callback hands each sample to the service's asyncio loop with
+``loop.call_soon_threadsafe`` through an :class:`Inbox` that holds at most ``capacity``
+samples in flight: past that, a sample is dropped and counted instead of queued without
+bound. A dropped transition shows as a ``seq`` gap, which the receiver repairs from the
+sensor's ``state`` queryable.
+
+Flow control (keys beyond DESIGN §3, under ``control/``): after each clock tick a service has
+processed it publishes ``control/progress/<service>/<id>`` (a ``Clock``); at end of stream,
+once its own upstream services are done, it publishes ``control/done/<service>/<id>`` (an
+``EndOfStream``). Replay stays a bounded event-time window ahead of the slowest service.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import os
+import signal
+import socket
+import threading
+import time
+from collections import defaultdict
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import zenoh
+
+from bintrack.errors import CommandError
+from bintrack.keys import Keys, parse_key
+from bintrack.messages import Clock, EndOfStream, Message, MessageError, decode, encode
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+DEFAULT_INBOX = 65536
+
+log = logging.getLogger("bintrack")
+
+
+# --------------------------------------------------------------------------- session options
+
+
+def add_bus_arguments(parser: argparse.ArgumentParser, *, net_default: str | None = "default") -> None:
+    """The Zenoh examples' options, plus the network name and how long to wait for the router."""
+    group = parser.add_argument_group("Zenoh session")
+    group.add_argument("-m", "--mode", choices=("peer", "client", "router"),
+                       help="Zenoh mode (default: client of the router, or as the config file says)")
+    group.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT",
+                       help=f"endpoint to connect to, repeatable (default: {DEFAULT_ENDPOINT})")
+    group.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
+                       help="endpoint to listen on, repeatable")
+    group.add_argument("-c", "--config", metavar="FILE",
+                       help="Zenoh configuration file (JSON5); default: $ZENOH_CONFIG if set")
+    group.add_argument("--cfg", action="append", default=[], metavar="KEY:VALUE",
+                       help="set a configuration key to a JSON5 value, e.g. --cfg 'scouting/multicast/enabled:false'")
+    group.add_argument("--net", default=net_default, metavar="NAME",
+                       help="network (deployment) name, the <net> of bintrack/<net>/…"
+                       + (f" (default: {net_default})" if net_default else ""))
+    group.add_argument("--wait", type=float, default=60.0, metavar="S",
+                       help="how long to keep retrying to reach the router, s (default: %(default)s)")
+
+
+def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
+    """A Zenoh config from the options: file (-c, else $ZENOH_CONFIG), then --cfg, -m, -e, -l.
+
+    With no file, the default is a client of the router at 127.0.0.1:7447 with multicast
+    scouting off, so nothing leaves loopback unless asked to.
+    """
+    path = args.config or os.environ.get("ZENOH_CONFIG")
+    try:
+        if path:
+            config = zenoh.Config.from_file(path)
+        else:
+            config = zenoh.Config()
+            config.insert_json5("scouting/multicast/enabled", "false")
+        for item in args.cfg:
+            key, sep, value = item.partition(":")
+            if not sep or not key:
+                raise ValueError(f"--cfg takes KEY:VALUE, got {item!r}")
+            config.insert_json5(key, value)
+        mode = args.mode or (None if path else "client")
+        if mode:
+            config.insert_json5("mode", json.dumps(mode))
+        connect = args.connect or ([] if path or mode != "client" else [DEFAULT_ENDPOINT])
+        if connect:
+            config.insert_json5("connect/endpoints", json.dumps(connect))
+        if args.listen:
+            config.insert_json5("listen/endpoints", json.dumps(args.listen))
+    except zenoh.ZError as exc:  # a missing or bad file, an unknown key, a value that is not JSON5
+        raise ValueError(f"bad Zenoh configuration: {exc}") from None
+    return config
+
+
+def client_config(endpoints: Iterable[str]) -> zenoh.Config:
+    """A client of the router(s) at ``endpoints``, no multicast scouting (as services default to)."""
+    config = zenoh.Config()
+    config.insert_json5("mode", '"client"')
+    config.insert_json5("connect/endpoints", json.dumps(list(endpoints)))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    return config
+
+
+def router_config(listen: Iterable[str] = (DEFAULT_ENDPOINT,)) -> zenoh.Config:
+    """An in-process Zenoh router listening on ``listen`` (loopback by default), no scouting."""
+    config = zenoh.Config()
+    config.insert_json5("mode", '"router"')
+    config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("scouting/gossip/enabled", "false")
+    return config
+
+
+def open_session(config: zenoh.Config, wait: float = 60.0, who: str = "bintrack",
+                 stop: threading.Event | None = None) -> zenoh.Session:
+    """Open a session, retrying while the router is not up yet, with a clear message.
+
+    Raises ``ConnectionError`` after ``wait`` seconds (or when ``stop`` is set).
+    """
+    deadline = time.monotonic() + wait
+    attempt = 0
+    while True:
+        attempt += 1
+        try:
+            return zenoh.open(config)
+        except zenoh.ZError as exc:
+            reason = str(exc).split(" at ")[0]
+            if time.monotonic() >= deadline or (stop is not None and stop.is_set()):
+                raise ConnectionError(f"{who}: no Zenoh router reachable after {attempt} attempts: {reason}") from None
+            if attempt == 1 or attempt % 10 == 0:
+                log.warning("%s: waiting for the Zenoh router (%s); retrying", who, reason)
+            if stop is not None:
+                stop.wait(0.5)
+            else:
+                time.sleep(0.5)
+
+
+# --------------------------------------------------------------------------- Zenoh → asyncio
+
+
+class Inbox:
+    """Bounded, non-blocking bridge from Zenoh callbacks to one asyncio handler, in arrival order.
+
+    At most ``capacity`` items are in flight; past that an item is dropped and counted in
+    ``dropped``. Never blocks a Zenoh thread.
+    """
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, capacity: int = DEFAULT_INBOX):
+        self.loop = loop
+        self.capacity = capacity
+        self.dropped = 0
+        self._in_flight = 0
+        self._lock = threading.Lock()
+        self._closed = False
+
+    def callback(self, handler: Callable[[Any], None]) -> Callable[[Any], None]:
+        """A Zenoh callback that delivers each item to ``handler`` on the asyncio loop."""
+
+        def deliver(item):
+            with self._lock:
+                self._in_flight -= 1
+            if not self._closed:
+                handler(item)
+
+        def on_zenoh_thread(item):
+            with self._lock:
+                if self._closed or self._in_flight >= self.capacity:
+                    self.dropped += not self._closed
+                    return
+                self._in_flight += 1
+            try:
+                self.loop.call_soon_threadsafe(deliver, item)
+            except RuntimeError:  # loop closed during shutdown
+                with self._lock:
+                    self._in_flight -= 1
+
+        return on_zenoh_thread
+
+    def close(self) -> None:
+        self._closed = True
+
+
+# --------------------------------------------------------------------------- service runtime
+
+
+@dataclass
+class BadInput:
+    """Bad payloads seen by a service: counted by reason, logged once per sender."""
+
+    service: str
+    counts: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    _logged: set[str] = field(default_factory=set)
+
+    def report(self, sender: str, reason: str) -> None:
+        kind = reason.split(":")[0]
+        self.counts[kind] += 1
+        if sender not in self._logged:
+            self._logged.add(sender)
+            log.warning("%s: dropped a bad payload from %s: %s (further ones from it are only counted)",
+                        self.service, sender, reason)
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+
+class Service:
+    """What every bintrack service shares: a session, a liveliness token under ``alive/``,
+    decoding with bad-input accounting, progress and done reports, and a clean shutdown on
+    SIGINT/SIGTERM. Subclasses declare what they need in :meth:`setup` and react in handlers
+    that run on the asyncio loop."""
+
+    name = "service"
+
+    def __init__(self, args: argparse.Namespace):
+        self.args = args
+        self.keys = Keys(args.net)
+        self.instance = getattr(args, "id", None) or f"{socket.gethostname()}-{os.getpid()}"
+        self.bad = BadInput(self.name)
+        self.session: zenoh.Session | None = None
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self.inbox: Inbox | None = None
+        self.stopping = asyncio.Event()
+        self._stop_thread = threading.Event()
+        self._declared: list[Any] = []
+        self._routes: list[tuple[zenoh.KeyExpr, Callable[[zenoh.Sample], None]]] = []
+        self._network_subscriber = None
+        self._token = None
+        self.exit_status = 0
+
+    # -- to override ---------------------------------------------------------------------
+
+    async def setup(self) -> None:
+        """Declare subscribers, queryables and publishers (the token is declared after)."""
+
+    async def main(self) -> None:
+        """Run until stopped (default: wait for a stop signal)."""
+        await self.stopping.wait()
+
+    async def teardown(self) -> None:
+        """Last words before the session closes."""
+
+    # -- helpers ---------------------------------------------------------------------------
+
+    def subscribe(self, key_expr: str, handler: Callable[[zenoh.Sample], None]) -> None:
+        """Call ``handler`` on the asyncio loop for every sample whose key ``key_expr`` includes.
+
+        A service has one Zenoh subscriber, on its whole network (``bintrack/<net>/**``), and
+        routes samples to handlers itself: Zenoh delivers one subscriber's samples in the order
+        each publisher sent them, but calls different subscribers from different threads, so
+        separate subscribers could see a publisher's messages on two keys swapped.
+        """
+        assert self.session is not None and self.inbox is not None
+        pattern = zenoh.KeyExpr(key_expr)
+        if not zenoh.KeyExpr(self.keys.all()).includes(pattern):
+            raise ValueError(f"{key_expr} is outside this service's network {self.keys.all()}")
+        self._routes.append((pattern, handler))
+        if self._network_subscriber is None:
+            self._network_subscriber = self.session.declare_subscriber(self.keys.all(), self.inbox.callback(self._route))
+            self._declared.append(self._network_subscriber)
+
+    def _route(self, sample: zenoh.Sample) -> None:
+        for pattern, handler in self._routes:
+            if pattern.includes(sample.key_expr):
+                handler(sample)
+
+    def serve(self, key_expr: str, handler: Callable[[zenoh.Query], None]) -> None:
+        """A queryable whose queries are answered on the asyncio loop; each query is dropped
+        (finalised) after the handler replied."""
+        assert self.session is not None and self.inbox is not None
+
+        def answer(query: zenoh.Query) -> None:
+            try:
+                handler(query)
+            finally:
+                query.drop()
+
+        self._declared.append(self.session.declare_queryable(key_expr, self.inbox.callback(answer)))
+
+    def publish(self, key_expr: str, message: Message) -> None:
+        assert self.session is not None
+        self.session.put(key_expr, encode(message))
+
+    def decode(self, cls: type, sample: zenoh.Sample):
+        """The message in ``sample``, or None (counted and logged once per sender) if bad."""
+        sender = str(sample.key_expr)
+        try:
+            return decode(cls, sample.payload.to_bytes())
+        except MessageError as exc:
+            self.bad.report(sender, exc.reason)
+            return None
+
+    def report_progress(self, t: float, sent: int | None = None) -> None:
+        self.publish(self.keys.progress(self.name, self.instance), Clock(t=t, sent=sent))
+
+    def report_done(self, t: float) -> None:
+        self.publish(self.keys.done(self.name, self.instance), EndOfStream(t=t))
+
+    def stop(self) -> None:
+        self.stopping.set()
+        self._stop_thread.set()
+
+    def follow_end_of_stream(self, upstream: Iterable[str], finish: Callable[[float], None]) -> None:
+        """Once ``control/eos`` has arrived and every live instance of the ``upstream`` services
+        has reported done, call ``finish(t)`` (flush, publish the last results) and report done.
+
+        Upstream instances are followed through their liveliness tokens, so a service with no
+        live upstream finishes at EOS directly.
+        """
+        assert self.session is not None and self.inbox is not None
+        tracker = UpstreamDone(upstream)
+        eos: list[float] = []
+        finished = []
+
+        def check() -> None:
+            if eos and not finished and tracker.complete:
+                finished.append(True)
+                finish(eos[0])
+                self.report_done(eos[0])
+
+        def on_alive(sample: zenoh.Sample) -> None:
+            tracker.on_liveliness(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+            check()
+
+        def on_done(sample: zenoh.Sample) -> None:
+            message = self.decode(EndOfStream, sample)
+            if message is not None:
+                parsed = parse_key(str(sample.key_expr))
+                tracker.on_done(parsed.service, parsed.instance, message.t)
+                check()
+
+        def on_eos(sample: zenoh.Sample) -> None:
+            message = self.decode(EndOfStream, sample)
+            if message is not None and not eos:
+                eos.append(message.t)
+                check()
+
+        self._declared.append(self.session.liveliness().declare_subscriber(
+            self.keys.alive(), self.inbox.callback(on_alive), history=True))
+        self.subscribe(self.keys.done(), on_done)
+        self.subscribe(self.keys.eos(), on_eos)
+
+    def query(self, key_expr: str, timeout: float = 2.0) -> list[bytes]:
+        """Payloads of the replies to a get on ``key_expr`` (blocking; call via to_thread)."""
+        assert self.session is not None
+        return [r.ok.payload.to_bytes() for r in self.session.get(key_expr, timeout=timeout) if r.ok is not None]
+
+    async def wait_for_deployment(self):
+        """The deployment from the ``deployment`` queryable, retried until it answers."""
+        from bintrack.messages import Deployment
+
+        warned = False
+        while not self.stopping.is_set():
+            for payload in await asyncio.to_thread(self.query, self.keys.deployment(), 1.0):
+                try:
+                    return decode(Deployment, payload)
+                except MessageError as exc:
+                    self.bad.report(self.keys.deployment(), exc.reason)
+            if not warned:
+                log.info("%s: waiting for the deployment on %s", self.name, self.keys.deployment())
+                warned = True
+            await asyncio.sleep(0.3)
+        return None
+
+    # -- lifecycle -------------------------------------------------------------------------
+
+    async def _run(self) -> int:
+        self.loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self.loop.add_signal_handler(sig, self.stop)
+        self.inbox = Inbox(self.loop, getattr(self.args, "inbox", DEFAULT_INBOX))
+        try:
+            config = zenoh_config(self.args)
+        except ValueError as exc:
+            log.error("%s: %s", self.name, exc)
+            return 2
+        try:
+            self.session = await asyncio.to_thread(open_session, config, self.args.wait, self.name, self._stop_thread)
+        except ConnectionError as exc:
+            log.error("%s", exc)
+            return 1
+        try:
+            try:
+                await self.setup()
+            except CommandError as exc:  # the deployment does not suit this service's options
+                log.error("%s: %s", self.name, exc)
+                return 2
+            if not self.stopping.is_set():
+                self._token = self.session.liveliness().declare_token(self.keys.alive(self.name, self.instance))
+                log.info("%s %s: ready on %s", self.name, self.instance, self.keys.prefix)
+                await self.main()
+            await self.teardown()
+            return self.exit_status
+        finally:
+            self.inbox.close()
+            for entity in reversed(self._declared):
+                entity.undeclare()
+            if self._token is not None:
+                self._token.undeclare()
+            self.session.close()
+            if self.bad.total or self.inbox.dropped:
+                log.warning("%s: %d bad payloads %s, %d dropped when the inbox was full", self.name,
+                            self.bad.total, dict(self.bad.counts), self.inbox.dropped)
+
+    def run(self) -> int:
+        """Run the service to completion; returns the process exit status."""
+        return asyncio.run(self._run())
+
+
+def configure_logging(verbose: bool = False) -> None:
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO,
+                        format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+
+
+def service_main(service_cls: type[Service], build_parser: Callable[[], argparse.ArgumentParser],
+                 argv: list[str] | None = None) -> int:
+    """Parse options, set up logging and run ``service_cls`` (the ``__main__`` of a service)."""
+    args = build_parser().parse_args(argv)
+    configure_logging(getattr(args, "verbose", False))
+    return service_cls(args).run()
+
+
+class UpstreamDone:
+    """Which upstream services are alive and which reported done (end of stream).
+
+    Feed it liveliness samples of ``alive/**`` and samples of ``control/done/**``;
+    ``complete`` says every live instance of the watched services has reported done.
+    """
+
+    def __init__(self, services: Iterable[str]):
+        self.services = set(services)
+        self.alive: set[tuple[str, str]] = set()
+        self.done: dict[tuple[str, str], float] = {}
+
+    def on_liveliness(self, key: str, present: bool) -> None:
+        parsed = parse_key(key)
+        if parsed.kind == "alive" and parsed.service in self.services:
+            entry = (parsed.service, parsed.instance)
+            (self.alive.add if present else self.alive.discard)(entry)
+
+    def on_done(self, service: str, instance: str, t: float) -> None:
+        if service in self.services:
+            self.done[(service, instance)] = t
+
+    @property
+    def complete(self) -> bool:
+        return all(entry in self.done for entry in self.alive)
+

@@ -1,0 +1,56 @@
+"""The whole stack's service command lines, for ``bintrack up`` and docker-compose alike.
+
+``docker-compose.yml`` runs each of these as ``python -m <module> <args>`` in our image; a test
+holds the compose file to :func:`stack_commands`, so both start the same processes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from bintrack.trackers import runs_on_peers
+
+
+@dataclass(frozen=True)
+class ServiceCommand:
+    name: str
+    args: tuple[str, ...]
+
+    @property
+    def module(self) -> str:
+        return f"bintrack.services.{self.name}"
+
+    def argv(self, python: str) -> list[str]:
+        """The command line with the interpreter ``python``."""
+        return [python, "-m", self.module, *self.args]
+
+
+def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None = None, speed: float = 1.0,
+                   loop: bool = False, record: str | None = None, estimates: str | None = None,
+                   tracker_args: tuple[str, ...] = ()) -> list[ServiceCommand]:
+    """The services in start order: the sensor agents, the peer agents if ``tracker`` runs on
+    them, the base station, the recorder if ``record``, and last the replay of ``source`` (if
+    any), which waits for all the others. ``estimates``: the peer tracker whose estimates
+    join mcmcda's reports (the peer agents run it); ``tracker_args``: further base-station
+    options of the tracker, for the service that runs it."""
+    bus = ("-e", endpoint, "--net", net)
+    services = [ServiceCommand("sensor_agent", bus)]
+    if runs_on_peers(tracker):
+        services.append(ServiceCommand("peer_agent", ("--tracker", tracker, *tracker_args, *bus)))
+        services.append(ServiceCommand("basestation", ("--tracker", tracker, *bus)))
+    else:
+        if estimates is not None:
+            services.append(ServiceCommand("peer_agent", ("--tracker", estimates, *bus)))
+        extra = (*tracker_args, *(("--estimates", estimates) if estimates is not None else ()))
+        services.append(ServiceCommand("basestation", ("--tracker", tracker, *extra, *bus)))
+    if record is not None:
+        services.append(ServiceCommand("recorder", ("--out", record, *bus)))
+    if source is not None:
+        replay = [source, "--speed", _number(speed), *(["--loop"] if loop else []),
+                  "--wait-for", ",".join(s.name for s in services)]
+        services.append(ServiceCommand("replay", (*replay, *bus)))
+    return services
+
+
+def _number(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else str(value)

@@ -1,0 +1,150 @@
+"""A service that consumes the network's transitions in event-time order (peer agents and the
+base station's own trackers).
+
+It hears ``sensor/*/transition``, repairs ``seq`` gaps from the sensors' ``state`` queryables
+(and transitions a sensor agent says it sent that never arrived), follows restarted sensor
+agents, and feeds a :class:`~bintrack.pipeline.TrackerDriver` whose watermark is the clock tick
+minus ``--lateness``; a subclass publishes what the tracker returns (``emit``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import zenoh
+
+from bintrack.live.bus import Service, log
+from bintrack.keys import parse_key
+from bintrack.messages import Clock, Deployment, Message, MessageError, SensorState, Transition, decode
+from bintrack.pipeline import TrackerDriver
+from bintrack.trackers import Tracker
+from bintrack.live.sequence_checks import SequenceCheck, SourceCheck
+
+
+class TransitionConsumer(Service):
+    """Base of services that run a tracker on the network's transitions."""
+
+    def start_intake(self, deployment: Deployment, tracker: Tracker, upstream: tuple[str, ...] = ("sensor_agent",)) -> None:
+        """Subscribe to transitions, agents' progress and the clock, and drive ``tracker``; at the
+        end of the stream, finish once every service of ``upstream`` is done."""
+        self.sensors = deployment.by_id()
+        self.driver = TrackerDriver(tracker)
+        self.sequence = SequenceCheck()
+        self.sources = SourceCheck()
+        self.fetched: set[tuple[str | None, int | None]] = set()  # fetched from state; may still arrive
+        self.newest: dict[str, float] = {}  # event time of the newest transition taken, per sensor
+        self.restarts: set[str | None] = set()  # sources seen counting from 1 again (logged once)
+        self.subscribe(self.keys.transition(), self.on_transition)
+        self.subscribe(self.keys.progress("sensor_agent"), self.on_agent_progress)
+        self.subscribe(self.keys.clock(), self.on_clock)
+        self.follow_end_of_stream(upstream, self.on_finish)
+
+    def emit(self, outputs: list[Message]) -> None:
+        """Publish the tracker's outputs."""
+        raise NotImplementedError
+
+    def on_transition(self, sample: zenoh.Sample) -> None:
+        transition = self.decode(Transition, sample)
+        if transition is None:
+            return
+        key = str(sample.key_expr)
+        if transition.sensor not in self.sensors or key != self.keys.transition(transition.sensor):
+            self.bad.report(key, f"transition of unknown or mismatched sensor {transition.sensor!r}")
+            return
+        self.follow_restart(transition)
+        kind = self.sequence.classify(transition)
+        if kind == "duplicate" or self.sources.seen(transition):
+            if (transition.source, transition.source_seq) in self.fetched:
+                self.fetched.discard((transition.source, transition.source_seq))  # fetched before it arrived
+            else:
+                self.bad.report(key, f"duplicate: seq {transition.seq} seen already")
+            return
+        if kind == "gap":
+            self.repair(transition)
+        self.take(transition)
+
+    def follow_restart(self, transition: Transition) -> None:
+        """A restarted sensor agent counts ``seq`` (and, under the same id, ``source_seq``) from
+        1 again: its transitions look old to the counters although they are newer in event
+        time than anything taken of their sensor. Forget the old counts, so that they are taken
+        (a genuine duplicate is never newer than what was taken)."""
+        old = self.sequence.classify(transition) == "duplicate" or self.sources.seen(transition)
+        if not old or transition.t <= self.newest.get(transition.sensor, -math.inf):
+            return
+        self.sequence.last.pop(transition.sensor, None)
+        if self.sources.seen(transition):
+            self.sources.forget(transition.source)
+        if transition.source not in self.restarts:
+            self.restarts.add(transition.source)
+            log.info("%s: %s counts its transitions from 1 again (a sensor agent restarted); following it",
+                     self.name, transition.source or transition.sensor)
+
+    def repair(self, transition: Transition) -> None:
+        """Fetch the transitions lost before ``transition`` from its sensor's state queryable."""
+        since = self.sequence.last.get(transition.sensor, 0)
+        selector = f"{self.keys.state(transition.sensor)}?since={since}"
+        if not self.fetch_missed(selector, before=transition):
+            log.warning("%s: seq gap before %d of %s could not be repaired (no state reply)", self.name,
+                        transition.seq, transition.sensor)
+
+    def on_agent_progress(self, sample: zenoh.Sample) -> None:
+        """A sensor agent says how many transitions it has sent: fetch any that did not arrive."""
+        report = self.decode(Clock, sample)
+        if report is None or report.sent is None:
+            return
+        source = parse_key(str(sample.key_expr)).instance
+        first = self.sources.first_missing(source, report.sent)
+        if first is not None:
+            selector = f"{self.keys.state()}?source={source};after={first - 1}"
+            if not self.fetch_missed(selector, upto=report.sent):
+                log.warning("%s: %s sent transitions that were lost and could not be fetched", self.name, source)
+
+    def fetch_missed(self, selector: str, before: Transition | None = None, upto: int | None = None) -> bool:
+        """Take the ``missed`` transitions of every state reply to ``selector``, oldest first:
+        those before ``before`` (same sensor), or with source_seq ≤ ``upto``.
+
+        The get blocks the loop on purpose: the fetched transitions must be taken before the
+        next clock tick moves the watermark past them. A reply takes milliseconds; only a
+        sensor agent that is gone costs the timeout.
+        """
+        missed: list[Transition] = []
+        replied = False
+        for payload in self.query(selector, timeout=2.0):
+            try:
+                state = decode(SensorState, payload)
+            except MessageError as exc:
+                self.bad.report(selector, exc.reason)
+                continue
+            replied = True
+            missed.extend(state.missed)
+        for transition in sorted(missed, key=lambda tr: (tr.sensor, tr.seq)):
+            if before is not None and (transition.sensor != before.sensor or transition.seq >= before.seq):
+                continue
+            if upto is not None and transition.source_seq > upto:
+                continue
+            if self.sequence.classify(transition) != "duplicate" and not self.sources.seen(transition):
+                self.take(transition)
+                self.fetched.add((transition.source, transition.source_seq))
+        return replied
+
+    def take(self, transition: Transition) -> None:
+        self.sequence.accept(transition)
+        self.sources.accept(transition)
+        self.newest[transition.sensor] = max(transition.t, self.newest.get(transition.sensor, -math.inf))
+        if not self.driver.push(transition):
+            self.bad.report(self.keys.transition(transition.sensor),
+                            f"late: t={transition.t} is behind the watermark (lateness {self.args.lateness} s)")
+
+    def on_clock(self, sample: zenoh.Sample) -> None:
+        tick = self.decode(Clock, sample)
+        if tick is None:
+            return
+        self.emit(self.driver.advance(tick.t - self.args.lateness))
+        self.report_progress(tick.t)
+
+    def on_finish(self, t: float) -> None:
+        self.emit(self.driver.finish())
+        if self.fetched:
+            log.info("%s: %d transitions that never arrived were fetched from the sensors' state",
+                     self.name, len(self.fetched))
+

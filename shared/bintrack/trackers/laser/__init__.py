@@ -1,0 +1,1 @@
+"""Line (laser) sensors (paper 003): the adaptive basis algorithm and its base-station tracker."""

@@ -1,0 +1,242 @@
+"""The base station's adaptive basis tracker for line (laser) sensors (paper 003), push-style.
+
+Transitions of line sensors (value 1 at each beam crossing, in event-time order) are grouped
+into *passes* — one object in the region at a time (paper 003 §2) — and each pass becomes an
+object of :class:`~bintrack.trackers.laser.adaptive_basis.AdaptiveBasis`. A pass is complete when
+
+1. every line sensor has detected it (a straight pass meets a beam at most once), or
+2. a sensor that already detected it fires again (that detection starts the next pass), or
+3. ``gap`` seconds of event time pass without a detection.
+
+Sensors that miss a pass (woke too late, beam outside the track) simply have no time for it
+(paper 003 Fig. 3); rules 2–3 close such passes. The default ``gap`` is half the shortest
+calibration pass's crossing time (t_exit − t_entry of the deployment's ``calibration`` passes,
+DESIGN §6): detections of one pass lie within its crossing time, and on the testbed the longest
+silence inside a pass is about a quarter of it. Without calibration passes it is learnt as half
+the longest detection span of the passes every sensor detected (until the first such pass, only
+rules 1–2 and the end of the stream close passes).
+
+Phase 1 runs on the first four passes that allow it (six sensors detected the first three, five
+of them the fourth, all four within 12 consecutive passes, and the input is not degenerate). From then on every completed pass is
+estimated and every parameter refined (phase 2, ``iterations`` Newton iterations per pass), and
+phase 3 maps the result to real-world coordinates: from the sensors' known positions (``x``,
+``y``; at least six, not on one line) and/or known beams (``a``, ``b``), else from the
+``calibration`` passes. :attr:`AdaptiveBasisTracker.frame_source` says which was used and
+:attr:`~AdaptiveBasisTracker.frame_reason` why.
+
+Output: one :class:`LineObjectEstimate` per pass, in pass order, each exactly once — the passes
+before phase 1 all at once when phase 1 succeeds, later ones when they complete. ``t_first`` and
+``t_last`` are the pass's first and last detection times (s); entry and exit are where the
+estimated straight path crosses the region's border (units; the positions at the first and last
+detection if the path misses the region); ``vx``, ``vy`` its real-world velocity (units/s, equal
+to (exit − entry) / (exit time − entry time)). A pass with fewer than four detections by
+estimated beams cannot be estimated and is skipped (listed in :attr:`skipped`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bintrack.trackers.laser.adaptive_basis import (
+    PHASE1_SENSORS,
+    AdaptiveBasis,
+    DegenerateError,
+    Frame,
+    border_times,
+    collinear,
+    frame_from_points,
+    frame_from_sensors,
+)
+from bintrack.errors import CommandError
+from bintrack.messages import Deployment, LineObjectEstimate, LineSensor, Transition
+
+NAME = "adaptive-basis"
+
+
+class AdaptiveBasisTracker:
+    """Paper 003 at the base station: ``update(transition)`` / ``flush(t)`` → ``LineObjectEstimate``s.
+
+    ``iterations``: Newton iterations per pass (paper: 5). ``gap`` (s): silence that ends a pass
+    (default: see the module docstring). Raises :class:`CommandError` if the deployment has fewer
+    than six line sensors or nothing can fix real-world coordinates.
+    """
+
+    name = NAME
+
+    def __init__(self, deployment: Deployment, *, iterations: int = 5, gap: float | None = None):
+        sensors = [s for s in deployment.sensors if isinstance(s, LineSensor)]
+        if not sensors:
+            raise CommandError(f"tracker {NAME} needs line sensors; this deployment has none")
+        if len(sensors) < PHASE1_SENSORS:
+            raise CommandError(f"tracker {NAME} needs at least {PHASE1_SENSORS} line sensors (paper 003 §4); "
+                               f"this deployment has {len(sensors)}")
+        if iterations < 0:
+            raise CommandError(f"tracker {NAME}: iterations must be ≥ 0, got {iterations}")
+        if gap is not None and not (math.isfinite(gap) and gap > 0):
+            raise CommandError(f"tracker {NAME}: gap must be a positive number of seconds, got {gap}")
+        self.deployment = deployment
+        self.ids = [s.id for s in sensors]
+        self._index = {sid: k for k, sid in enumerate(self.ids)}
+        self.positions = {k: (s.x, s.y) for k, s in enumerate(sensors) if s.x is not None}
+        self.known_beams = {k: (s.a, s.b) for k, s in enumerate(sensors) if s.a is not None}
+        region = deployment.region
+        self._box = (region.xmin, region.ymin, region.xmax, region.ymax)
+        self.calibration = list(deployment.calibration.passes) if deployment.calibration else []
+        self.frame_plan, self.frame_reason = self._plan_frame()
+        if not self.frame_plan:
+            raise CommandError(f"tracker {NAME} cannot place its estimates in real-world coordinates: "
+                               f"{self.frame_reason}")
+        self.basis = AdaptiveBasis(len(sensors), iterations=iterations)
+        self.gap_source = "option" if gap is not None else ("calibration" if self.calibration else "learnt")
+        if gap is None and self.calibration:
+            gap = 0.5 * min(p.t_exit - p.t_entry for p in self.calibration)
+        self.gap = gap
+        self.frame: Frame | None = None
+        self.frame_source: str | None = None
+        self.frame_errors: dict[str, str] = {}  # the last reason each source failed, if it did
+        self.skipped: list[int] = []
+        self.passes: list[tuple[float, float]] = []  # (t_first, t_last) per completed pass
+        self._current: dict[int, float] = {}
+        self._last = -math.inf
+        self._emitted = 0
+
+    # ---------------------------------------------------------------- phase 3 plan
+
+    def _plan_frame(self) -> tuple[tuple[str, ...], str]:
+        """Which sources can fix real-world coordinates, in the order they are tried, and why."""
+        plan = []
+        equations = len(self.positions) + 2 * len(self.known_beams)
+        reasons = []
+        if equations >= 6 and (len(self.known_beams) >= 3 or not collinear(list(self.positions.values()))):
+            plan.append("sensors")
+            reasons.append(f"{len(self.positions)} known sensor positions and {len(self.known_beams)} known beams")
+        elif self.positions and collinear(list(self.positions.values())):
+            reasons.append(f"the {len(self.positions)} known sensor positions lie on one line, so they cannot fix "
+                           "the frame (paper 003 eq. 29 is singular)")
+        else:
+            reasons.append(f"{len(self.positions)} known sensor positions and {len(self.known_beams)} known beams "
+                           "are too few (six positions, or three beams, are needed)")
+        if len(self.calibration) >= 2:
+            plan.append("calibration")
+            reasons.append(f"{len(self.calibration)} calibration passes" + (" (fallback)" if plan[0] == "sensors" else ""))
+        else:
+            reasons.append(f"{len(self.calibration)} calibration passes (two are needed)")
+        return tuple(plan), "; ".join(reasons)
+
+    def _calibration_object(self, t_entry: float, t_exit: float) -> int | None:
+        """The pass with the most detections within [t_entry, t_exit] (s), or None."""
+        best, count = None, 0
+        times = self.basis.times
+        for obj in range(self.basis.objects):
+            col = times[:, obj]
+            inside = int(np.sum((col >= t_entry) & (col <= t_exit)))
+            if inside > count:
+                best, count = obj, inside
+        return best
+
+    def _compute_frame(self) -> Frame | None:
+        basis = self.basis
+        for source in self.frame_plan:
+            try:
+                if source == "sensors":
+                    known = basis.line_known()
+                    positions = {k: p for k, p in self.positions.items() if known[k]}
+                    beams = {k: ab for k, ab in self.known_beams.items() if known[k]}
+                    return frame_from_sensors(basis.lines, positions, beams)
+                pairs = []
+                for cal in self.calibration:
+                    obj = self._calibration_object(cal.t_entry, cal.t_exit)
+                    if obj is None or not basis.object_known()[obj]:
+                        continue
+                    pairs.append((basis.position(obj, cal.t_entry), cal.entry))
+                    pairs.append((basis.position(obj, cal.t_exit), cal.exit))
+                return frame_from_points(pairs)
+            except DegenerateError as exc:
+                self.frame_errors[source] = str(exc)
+                continue
+        return None
+
+    # ---------------------------------------------------------------- push interface
+
+    def update(self, transition: Transition) -> list[LineObjectEstimate]:
+        """Take one line-sensor transition (value 1 = beam crossed at ``t``; others are ignored)."""
+        k = self._index.get(transition.sensor)
+        if k is None or transition.value != 1:
+            return []
+        out: list[LineObjectEstimate] = []
+        if self._current:
+            if self.gap is not None and transition.t > self._last + self.gap:
+                out += self._close()
+            elif k in self._current:
+                if self._current[k] == transition.t:
+                    return out  # the same crossing twice
+                out += self._close()
+        self._current[k] = transition.t
+        self._last = transition.t
+        if len(self._current) == len(self.ids):
+            out += self._close()
+        return out
+
+    def flush(self, t: float) -> list[LineObjectEstimate]:
+        """No transition at or before ``t`` (s) will come: close the open pass if its gap has
+        elapsed (``t = inf``: close it anyway) and return what can be estimated."""
+        if self._current and (t == math.inf or (self.gap is not None and t >= self._last + self.gap)):
+            return self._close()
+        return []
+
+    # ---------------------------------------------------------------- passes
+
+    def _close(self) -> list[LineObjectEstimate]:
+        col = np.full(len(self.ids), np.nan)
+        for k, t in self._current.items():
+            col[k] = t
+        self._current = {}
+        self.passes.append((float(np.nanmin(col)), float(np.nanmax(col))))
+        if self.gap_source == "learnt" and np.all(np.isfinite(col)):
+            self.gap = max(self.gap or 0.0, 0.5 * float(np.ptp(col)))
+        self.basis.add_object(col)
+        if not self.basis.try_initialise():
+            return []
+        frame = self._compute_frame()
+        if frame is None:
+            return []
+        self.frame, self.frame_source = frame, frame.source
+        out = []
+        known = self.basis.object_known()
+        for obj in range(self._emitted, self.basis.objects):
+            estimate = self._estimate(obj) if known[obj] else None
+            if estimate is None:
+                self.skipped.append(obj + 1)
+            else:
+                out.append(estimate)
+        self._emitted = self.basis.objects
+        return out
+
+    def _estimate(self, obj: int) -> LineObjectEstimate | None:
+        basis, frame = self.basis, self.frame
+        t_ref = float(basis.t_refs[obj])
+        centre = frame.points(basis.centres[obj])
+        velocity = frame.vectors(basis.velocities[obj])
+        t_first, t_last = self.passes[obj]
+        times = border_times(centre, velocity, t_ref, self._box) or (t_first, t_last)
+        entry, exit_ = (centre + velocity * (t - t_ref) for t in times)
+        values = [*entry, *exit_, *velocity]
+        if not all(math.isfinite(v) for v in values):
+            return None
+        return LineObjectEstimate(object=obj + 1, t_first=t_first, t_last=t_last,
+                                  entry_x=float(entry[0]), entry_y=float(entry[1]),
+                                  exit_x=float(exit_[0]), exit_y=float(exit_[1]),
+                                  vx=float(velocity[0]), vy=float(velocity[1]))
+
+    # ---------------------------------------------------------------- views
+
+    def beams(self) -> dict[str, tuple[float, float]]:
+        """The estimated beams (a, b) in real-world units⁻¹ by sensor id (phase 3 applied); empty
+        before the first frame."""
+        if self.frame is None:
+            return {}
+        known = self.basis.line_known()
+        real = self.frame.lines(self.basis.lines)
+        return {sid: (float(real[k, 0]), float(real[k, 1])) for k, sid in enumerate(self.ids) if known[k]}

@@ -1,0 +1,352 @@
+"""Multi-sensor fusion of binary detections into position reports (paper 004 §III).
+
+The surveillance region is quantized into square cells. For a cell c covered by the sensing
+disks of the sensors S(c), the *detection-likelihood* of one scan's detections y is the
+detection part of eq. (4),
+
+    L(c) = ∏_{i ∈ S(c)} p_i^{y_i} (1 − p_i)^{1 − y_i},
+
+computed only where at least ``n_d`` sensors of S(c) detect (the threshold test that replaces
+the false-detection part, which would need every sensor's report). In the distributed form each
+cell is assigned to one sensor that covers it (here the nearest), which computes it from its
+own and its neighbours' reports; the paper has a sensor do so only when it itself reports a
+detection (``FusionConfig.owner_detects``). The paper clusters the cells whose likelihood was
+computed: take a seed cell, gather the remaining cells within the sensing radius of it, remove
+them, repeat; each cluster's likelihood-weighted centre of mass is one position report. The
+paper picks seeds at random; we take the most likely remaining cell, which is deterministic and
+puts the seed on the strongest evidence.
+
+By default we do not cluster but fit targets to the scan by eq. (4) over all sensors, helped by
+where the tracks expect targets (:mod:`bintrack.trackers.multi.target_fit`): clusters merge two people a little
+more than a sensing range apart and make satellites around one person.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.spatial import ConvexHull, QhullError, cKDTree
+
+from bintrack.errors import CommandError
+from bintrack.messages import Deployment, DiskSensor, PositionReport, PositionReports, SectorSensor, Transition
+from bintrack.sensing import reports_presence
+from bintrack.trackers.multi.target_fit import Expectation, TargetFit, weighted_report
+
+DEFAULT_SCAN = 0.5  # s, when the sensors are event-driven (no sampling period)
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """Parameters of the grid fusion (paper 004 §III)."""
+
+    cell: float | None = None
+    """side of a grid cell, deployment units; default: an eighth of the smallest sensing range
+    (1 m for the 8 m PIR sensors of paper 004)"""
+    threshold: int = 3
+    """n_d: detections a cell needs before its detection-likelihood is computed"""
+    scan: float | None = None
+    """scan period, s; default: the sensors' sampling period (0.5 s if they have none)"""
+    owner_detects: bool = False
+    """compute a cell only when the sensor it is assigned to detects itself (the paper's
+    trigger); by default a sensor computes its cells whenever n_d covering sensors detect,
+    which does not lose the cells of a sensor that missed the target (1 − pd of the time)"""
+    full: bool = True
+    """weight cells by eq. (4) in full (up to a common factor) rather than its detection part"""
+    clustering: Literal["paper", "explain", "fit"] = "fit"
+    """how a scan's detections become reports (see ``GridFusion.reports``)"""
+    min_gain: float = 3.0
+    """"fit": the least gain, nats of eq. (4)'s likelihood ratio, for which a new target is placed
+    (or one target is split in two)"""
+    expected_gain: float = 1.0
+    """"fit": the least support, nats, for a target placed where a track expects one"""
+    expected_sigmas: float = 3.0
+    """"fit": an expected target may sit within this many standard deviations of the prediction"""
+    split: bool = True
+    """"fit": try replacing each new target by two"""
+    shared: bool = True
+    """"fit": copy a report for an established track hidden in another track's blob"""
+    shared_speed: float = 0.5
+    """the least difference in velocity, m/s (converted to the deployment's units), between the
+    hidden track and the report's"""
+    shared_age: int = 6
+    """reports both tracks must have taken before a copy is made"""
+    shared_gap: float = 1.0
+    """a copy is made when the hidden track's prediction is within this multiple of the
+    sensing range of the report"""
+    shared_edge: float = 1.0
+    """no copy for a track predicted within this multiple of the sensing range of the edge of
+    the sensor field (the sensors' convex hull): there a person with no support of their own
+    has as likely left"""
+    track_aided: bool = True
+    """the MCMCDA tracker passes its tracks' expectations to the "fit" fusion"""
+    explained: float = 1.0
+    """"explain": a report explains the detections of sensors within this multiple of their
+    sensing range of it"""
+
+
+class GridFusion:
+    """The quantized detection-likelihood of a deployment's disk (or sector) sensors.
+
+    pd and pfa come from each sensor (pd 1 and pfa 0 where the deployment gives none, the ideal
+    model). Sector sensors count as present whenever they report a sector.
+    """
+
+    def __init__(self, deployment: Deployment, config: FusionConfig = FusionConfig()):
+        sensors = [s for s in deployment.sensors if isinstance(s, (DiskSensor, SectorSensor))]
+        if not sensors:
+            raise CommandError("fusion needs disk or sector sensors; this deployment has none")
+        if config.cell is not None and not config.cell > 0:
+            raise CommandError(f"fusion cell size must be positive, got {config.cell}")
+        if not config.min_gain >= 0:
+            raise CommandError(f"fusion min_gain must be at least 0 nats, got {config.min_gain}")
+        if not config.shared_edge >= 0:
+            raise CommandError(f"fusion shared_edge must be at least 0 sensing ranges, got {config.shared_edge}")
+        if config.threshold < 1:
+            raise CommandError(f"fusion threshold n_d must be at least 1, got {config.threshold}")
+        self.config = config
+        self.shared_speed = config.shared_speed / deployment.metres_per_unit
+        """``config.shared_speed`` in the deployment's units per second"""
+        self.ids = [s.id for s in sensors]
+        self.index = {sid: i for i, sid in enumerate(self.ids)}
+        positions = np.array([(s.x, s.y) for s in sensors])
+        ranges = np.array([s.range for s in sensors])
+        pd = np.array([1.0 if s.pd is None else s.pd for s in sensors])
+        pfa = np.array([0.0 if s.pfa is None else s.pfa for s in sensors])
+        with np.errstate(divide="ignore"):
+            self._log_hit = np.log(pd)
+            self._log_miss = np.log1p(-pd)
+            # eq. (4) over all sensors = ∏_{i∉S(c)} q_i^y(1−q_i)^(1−y) · ∏_{i∈S(c)} p_i^y(1−p_i)^(1−y),
+            # i.e. a constant (no target anywhere) times ∏_{i∈S(c)} (p_i/q_i)^y ((1−p_i)/(1−q_i))^(1−y)
+            # (clamped, so that ideal sensors, pd = 1 and pfa = 0, give large finite ratios)
+            pd_c, pfa_c = np.clip(pd, 1e-9, 1 - 1e-9), np.clip(pfa, 1e-9, 1 - 1e-9)
+            self.log_hit_ratio = np.log(pd_c) - np.log(pfa_c)
+            """per sensor: log(pd/pfa), nats, the weight of a detection in eq. (4)"""
+            self.log_miss_ratio = np.log1p(-pd_c) - np.log1p(-pfa_c)
+            """per sensor: log((1 − pd)/(1 − pfa)), nats, the weight of a miss"""
+        region = deployment.region
+        h = config.cell if config.cell is not None else float(min(s.range for s in sensors)) / 8.0
+        self.cell = h
+        """side of a grid cell, deployment units"""
+        xs = np.arange(region.xmin + h / 2, region.xmax, h)
+        ys = np.arange(region.ymin + h / 2, region.ymax, h)
+        grid = np.array(np.meshgrid(xs, ys, indexing="xy")).reshape(2, -1).T
+        tree = cKDTree(positions)
+        covering = tree.query_ball_point(grid, r=float(ranges.max()))
+        rows, cols = [], []
+        owner = np.full(len(grid), -1)
+        for c, candidates in enumerate(covering):
+            if not candidates:
+                continue
+            candidates = np.asarray(candidates)
+            gaps = np.linalg.norm(positions[candidates] - grid[c], axis=1)
+            inside = candidates[gaps <= ranges[candidates]]
+            if inside.size == 0:
+                continue
+            rows.extend([c] * inside.size)
+            cols.extend(inside.tolist())
+            owner[c] = candidates[np.argmin(np.where(gaps <= ranges[candidates], gaps, np.inf))]
+        covered = owner >= 0
+        keep = np.flatnonzero(covered)
+        renumber = np.full(len(grid), -1)
+        renumber[keep] = np.arange(keep.size)
+        self.cells = grid[keep]
+        """cell centres (m × 2), deployment units"""
+        self.owner = owner[keep]
+        """index of the sensor each cell is assigned to (the nearest that covers it)"""
+        data = np.ones(len(rows))
+        self.cover = csr_matrix((data, (renumber[np.array(rows, dtype=int)], np.array(cols, dtype=int))),
+                                shape=(keep.size, len(sensors)))
+        """cells × sensors, 1 where the sensor's disk covers the cell"""
+        self._radius = ranges
+        self._positions = positions
+        self._sensor_tree = tree
+        self.cell_tree = cKDTree(self.cells)
+        try:
+            self._hull = ConvexHull(positions).equations
+        except QhullError:  # fewer than three sensors, or all on one line: no area to be inside
+            self._hull = None
+        self.cell_range = ranges[self.owner]
+        """per cell: the sensing range of the sensor it is assigned to, units"""
+        self._fit = TargetFit(self)
+
+    def depth(self, x: float, y: float) -> float:
+        """How far (units) the point (x, y) lies inside the sensor field, the convex hull of the
+        sensors: the distance to its edge, negative outside; infinite when the sensors enclose
+        no area."""
+        if self._hull is None:
+            return math.inf
+        return -float(np.max(self._hull[:, :2] @ (x, y) + self._hull[:, 2]))
+
+    def detection_likelihood(self, detecting: np.ndarray, full: bool = False,
+                             active: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Cells whose likelihood is computed for the 0/1 vector ``detecting`` (one entry per
+        sensor, in ``ids`` order), and their log-likelihoods.
+
+        A cell counts when at least n_d covering sensors detect (and, with ``owner_detects``, the
+        sensor it is assigned to, which computes it, §III distributed form). The value is the
+        detection part of eq. (4); with ``full``, eq. (4) itself up to a factor common to all
+        cells (the covering sensors' likelihood ratios against a false detection), which is just
+        as local. Sensors outside ``active`` (default: all) take no part: neither their
+        detections nor their misses count.
+        """
+        y = detecting.astype(float)
+        if active is not None:
+            y = y * active
+        counts = self.cover @ y
+        computed = counts >= self.config.threshold
+        if self.config.owner_detects:
+            computed &= y[self.owner] > 0
+        cells = np.flatnonzero(computed)
+        if cells.size == 0:
+            return cells, np.zeros(0)
+        if full:
+            per_sensor = np.where(y > 0, self.log_hit_ratio, self.log_miss_ratio)
+        else:
+            per_sensor = np.where(y > 0, self._log_hit, self._log_miss)
+        per_sensor = np.where(np.isfinite(per_sensor), per_sensor, -1e300)
+        if active is not None:
+            per_sensor = per_sensor * active
+        return cells, self.cover[cells] @ per_sensor
+
+    def likelihood_map(self, detecting: np.ndarray, full: bool = False) -> np.ndarray:
+        """Likelihood of every cell (0 where it is not computed), scaled to a maximum of 1, for plots."""
+        out = np.zeros(len(self.cells))
+        cells, values = self.detection_likelihood(detecting, full)
+        if cells.size:
+            out[cells] = np.exp(values - values.max())
+        return out
+
+    def reports(self, detecting: np.ndarray, expected: list[Expectation] | tuple = ()) -> list[PositionReport]:
+        """Position reports of one scan; covariances in units².
+
+        ``clustering="fit"`` (default): targets fitted to the detections by eq. (4) over every
+        sensor, using ``expected`` (the tracks' predictions, strongest first), see
+        :mod:`bintrack.trackers.multi.target_fit`. ``"paper"`` (§III): seeds in order of likelihood, each
+        gathering the remaining computed cells within its sensing radius; a report is the
+        likelihood-weighted centre and spread of its cells plus the cell quantization (h²/12).
+        ``"explain"``: as "paper", but after each cluster the detections of the sensors covering
+        its centre are explained by it and the likelihood is computed again without them, so
+        that one target's detections make one report rather than a report and satellites.
+        """
+        if self.config.clustering == "paper":
+            cells, log_l = self.detection_likelihood(detecting, self.config.full)
+            return self._clusters(cells, log_l, limit=None)
+        if self.config.clustering == "fit":
+            return self._fit.reports(detecting, expected)
+        active = np.ones(len(self.ids))
+        reports: list[PositionReport] = []
+        while True:
+            cells, log_l = self.detection_likelihood(detecting, self.config.full, active)
+            found = self._clusters(cells, log_l, limit=1)
+            if not found:
+                return reports
+            report = found[0]
+            reports.append(report)
+            covering = self._sensor_tree.query_ball_point((report.x, report.y), r=float(self._radius.max()))
+            explained = [i for i in covering if active[i] and detecting[i] and math.hypot(
+                self._positions[i, 0] - report.x, self._positions[i, 1] - report.y) <= self.config.explained * self._radius[i]]
+            if not explained:  # nothing left for it to explain: it cannot change the next pass
+                return reports
+            active[explained] = 0.0
+
+    def _clusters(self, cells: np.ndarray, log_l: np.ndarray, limit: int | None) -> list[PositionReport]:
+        if cells.size == 0:
+            return []
+        likelihood = np.exp(log_l - log_l.max())
+        order = np.argsort(-likelihood, kind="stable")
+        free = np.zeros(len(self.cells), dtype=bool)
+        free[cells] = True
+        weight = np.zeros(len(self.cells))
+        weight[cells] = likelihood
+        reports = []
+        for seed in cells[order]:
+            if not free[seed]:
+                continue
+            members = np.asarray(self.cell_tree.query_ball_point(self.cells[seed], r=float(self.cell_range[seed])))
+            members = members[free[members]]
+            free[members] = False
+            w = weight[members]
+            reports.append(weighted_report(self.cells[members], w, self.cell, weight=float(w.sum())))
+            if limit is not None and len(reports) >= limit:
+                break
+        return reports
+
+
+def scan_period(deployment: Deployment, config: FusionConfig) -> float:
+    """The scan period, s: ``config.scan``, else the sensors' longest sampling period, else 0.5 s."""
+    if config.scan is not None:
+        if not config.scan > 0:
+            raise CommandError(f"scan period must be positive, got {config.scan}")
+        return config.scan
+    periods = [s.period for s in deployment.sensors if getattr(s, "period", None)]
+    return max(periods) if periods else DEFAULT_SCAN
+
+
+@dataclass(frozen=True)
+class Scan:
+    """Every sensor's status (``GridFusion.ids`` order, True = detecting) at event time ``t`` (s)."""
+
+    t: float
+    detecting: np.ndarray
+
+
+class ScanFusion:
+    """Transitions in event-time order → one ``PositionReports`` per scan.
+
+    Scan k is at event time k·P (P the scan period) and sees every sensor's status as of that
+    time (the last sample at or before it). It is emitted once no transition at or before k·P
+    can come (``flush``). Scans run from the first one at or after the first transition to the
+    first one at or after the last transition.
+    """
+
+    def __init__(self, deployment: Deployment, config: FusionConfig = FusionConfig()):
+        self.grid = GridFusion(deployment, config)
+        self.period = scan_period(deployment, config)
+        self._detecting = np.zeros(len(self.grid.ids), dtype=bool)
+        self._sensors = deployment.by_id()
+        self._next: int | None = None  # index of the next scan to emit
+        self._last_t: float | None = None
+
+    def fuse(self, scan: Scan, expected: list[Expectation] | tuple = ()) -> PositionReports:
+        """The position reports of ``scan`` (``GridFusion.reports``), given where the tracks
+        expect targets (used by the "fit" fusion)."""
+        return PositionReports(t=scan.t, reports=self.grid.reports(scan.detecting, expected))
+
+    def update(self, transition: Transition) -> list[Scan]:
+        """Apply ``transition`` after emitting the scans strictly before its time."""
+        out = self.flush(math.nextafter(transition.t, -math.inf))
+        i = self.grid.index.get(transition.sensor)
+        if i is not None:
+            self._detecting[i] = reports_presence(self._sensors[transition.sensor], transition.value)
+        if self._next is None:
+            self._next = self.scan_of(transition.t)
+        self._last_t = transition.t
+        return out
+
+    def flush(self, t: float) -> list[Scan]:
+        """Emit every scan at event time ≤ ``t`` (s); with t = ∞, up to the last transition's."""
+        if self._next is None:
+            return []
+        if math.isinf(t):
+            t = self.scan_of(self._last_t) * self.period
+        out = []
+        while (scan_t := round(self._next * self.period, 9)) <= t:
+            out.append(Scan(t=scan_t, detecting=self._detecting.copy()))
+            self._next += 1
+        return out
+
+    def scan_of(self, t: float) -> int:
+        """Index of the first scan at or after event time ``t`` (s)."""
+        return math.ceil(round(t / self.period, 9))
+
+    def next_scan(self) -> int:
+        """Index of the next scan to be emitted (scans before it are final)."""
+        return -math.inf if self._next is None else self._next
+
+    def detecting(self) -> np.ndarray:
+        """The current 0/1 status of every sensor (``grid.ids`` order)."""
+        return self._detecting.copy()

@@ -1,0 +1,311 @@
+"""Position reports by fitting targets to one scan's detections (our fusion for paper 004 §III).
+
+The paper clusters the grid cells whose eq. (4) likelihood was computed. Two people a little more
+than a sensing range apart then make one cluster, and one person makes satellites. Here we fit
+targets to the scan instead. A set X of target positions (grid cells) covers the sensors within
+range of any of them. Eq. (4), taken over every sensor, gives X a log-likelihood ratio against
+"no target anywhere":
+
+    ℓ(X) = Σ_{i covered by X} w_i,   w_i = log(p_i / q_i) if i detects, else log((1 − p_i)/(1 − q_i)),
+
+with p_i the sensor's pd and q_i its pfa. ℓ depends on X only through the union of the disks, so
+a target adds the weights of the sensors it covers that no other target covers (its *gain*).
+
+1. **Expected targets.** A track that expects its target near (x, y), with standard deviation
+   σ, places one if the scan supports it: the gain averaged over the track's Gaussian prior on
+   the cell, log Σ_c π(c) e^{gain(c)}, must reach ``expected_gain``. That average is the
+   likelihood ratio of "the target is where the track says" against "it is not there".
+   π is normalised over the whole plane, so prior mass outside the sensors' reach (a target
+   leaving) supports nothing. The placed target may move within 3σ of the prediction.
+   Each track's support is judged on the scan alone, not given the targets of the tracks placed
+   before it: two tracks whose people walk within a range of each other share detections, and
+   whichever was placed first would take them all. Their targets settle together (coordinate
+   ascent, as in step 2), and step 4 drops one whose support, given the others, has fallen
+   below the bar.
+2. **New targets**, greedily. Each is placed at the cell of largest gain, if that gain is at
+   least ``min_gain`` and the cell newly explains at least n_d detections (the paper's
+   threshold). After each placement, every target moves in turn to its best cell given the
+   others (coordinate ascent on ℓ).
+3. **Splits.** A new target is replaced by two if that raises ℓ by ``min_gain``. This finds two
+   people whose disks overlap, which the greedy step sees as one.
+4. **Pruning.** A target whose gain has fallen below its threshold, once the others have moved,
+   is dropped.
+5. **Reports.** A target's report is the mean and covariance of its cell under its own gain,
+   given the other targets, over the cells within one range of it. That is the posterior of
+   its position under a flat prior.
+6. **Shared reports.** A track whose target found no support of its own is given a copy of a
+   nearby report, marked ``shared``, when all of these hold:
+   - its prediction lies within one sensing range of that report;
+   - the report was placed for another track;
+   - the two tracks have moved differently (by at least ``shared_speed``, m/s);
+   - both are established (at least ``shared_age`` reports);
+   - it was reported in the previous scan;
+   - its prediction is at least ``shared_edge`` sensing ranges inside the sensor field (the
+     sensors' convex hull). Nearer the edge, a person with no support of their own has as
+     likely left, and a copy would keep a departed person's track alive on someone else's
+     detections.
+
+   Two people passing each other make one blob of detections, and binary sensors cannot
+   resolve it. The copy keeps the hidden person's track, and its count, alive. The copy has a
+   loose covariance (the gap plus (R/2)² per axis), so it does not pull the track onto the
+   other person. Two tracks on one person move alike and get no copies. A new track cannot
+   begin with a copy (``mcmcda``).
+
+The likelihood is eq. (4) itself, and each sensor's term stays local. Everything runs on the
+grid of ``GridFusion``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.special import logsumexp
+
+from bintrack.messages import PositionReport
+
+if TYPE_CHECKING:
+    from bintrack.trackers.multi.fusion import GridFusion
+
+# A report's least variance per axis, in cells²: a uniform position in a cell of side h has h²/12.
+_MIN_VARIANCE_CELLS = 1.0 / 12.0
+# Starting offsets of a split, as angles of the line through the two new targets.
+_SPLIT_ANGLES = np.arange(4) * np.pi / 4
+_MAX_SWEEPS = 10
+
+
+@dataclass(frozen=True)
+class Expectation:
+    """Where a live track expects its target in the scan being fused."""
+
+    x: float
+    """predicted position, deployment units"""
+    y: float
+    sigma: float
+    """standard deviation of the predicted position (larger axis), units"""
+    vx: float
+    """velocity, units/s"""
+    vy: float
+    reports: int
+    """reports the track has taken so far"""
+    unreported: int
+    """scans since its last report, counting this one (1: it was reported in the previous scan)"""
+
+
+@dataclass
+class _Target:
+    cell: int
+    expectation: int | None = None  # index into the scan's expectations; None for a new target
+    gate: np.ndarray | None = None  # cells it may occupy (an expected target)
+    log_prior: np.ndarray | None = None  # log π over ``gate``
+
+
+def weighted_report(cells: np.ndarray, w: np.ndarray, cell: float, weight: float) -> PositionReport:
+    """A position report from grid cells (n × 2, units) weighted by ``w``: their weighted mean
+    and covariance plus the quantization of a cell of side ``cell`` (h²/12 per axis), units²."""
+    w_sum = float(w.sum())
+    centre = (w[:, None] * cells).sum(axis=0) / w_sum
+    spread = cells - centre
+    cov = (w[:, None, None] * np.einsum("ni,nj->nij", spread, spread)).sum(axis=0) / w_sum
+    cov += np.eye(2) * _MIN_VARIANCE_CELLS * cell ** 2
+    return PositionReport(x=float(centre[0]), y=float(centre[1]),
+                          cov=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
+                          weight=weight)
+
+
+class TargetFit:
+    """Fits targets to one scan's detections on ``grid`` (see the module docstring)."""
+
+    def __init__(self, grid: GridFusion):
+        self.grid = grid
+        self.config = grid.config
+        cover = grid.cover
+        self._sensors_of = [cover.indices[cover.indptr[c]:cover.indptr[c + 1]] for c in range(cover.shape[0])]
+
+    def reports(self, detecting: np.ndarray, expected: list[Expectation] | tuple = ()) -> list[PositionReport]:
+        """The position reports of one scan: ``detecting`` is every sensor's status in
+        ``grid.ids`` order; ``expected`` the tracks' expectations, strongest first. Covariances
+        are in units²; ``weight`` is the target's gain in nats."""
+        scan = _Scan(self, detecting)
+        for e, expectation in enumerate(expected):
+            scan.place_expected(e, expectation)
+        if scan.targets:
+            scan.settle()
+        # each new target newly explains n_d detections when placed: a bound that ends the loop
+        # even where settling hands detections back and forth
+        limit = len(scan.targets) + int(scan.hits.sum()) // self.config.threshold
+        while len(scan.targets) < limit and scan.place_new():
+            scan.settle()
+        if self.config.split:
+            for _ in range(len(scan.targets) + 1):
+                if not scan.split_one():
+                    break
+            scan.settle()
+        scan.prune()
+        reports = [scan.report(k) for k in range(len(scan.targets))]
+        if self.config.shared:
+            reports += scan.shared_copies(reports, expected)
+        return reports
+
+
+class _Scan:
+    """The targets placed so far in one scan, and the gains of the cells given them."""
+
+    def __init__(self, fit: TargetFit, detecting: np.ndarray):
+        self.fit = fit
+        self.grid = fit.grid
+        self.config = fit.config
+        self.hits = detecting > 0
+        self.weight = np.where(self.hits, self.grid.log_hit_ratio, self.grid.log_miss_ratio)
+        self.targets: list[_Target] = []
+
+    def _covered(self, cells) -> np.ndarray:
+        mask = np.zeros(len(self.weight), dtype=bool)
+        for c in cells:
+            mask[self.fit._sensors_of[c]] = True
+        return mask
+
+    @cached_property
+    def gains_alone(self) -> np.ndarray:
+        """Per cell: the gain (nats) of a target there with no other target, the same for every
+        track's expected target in the scan."""
+        return self.gains([])
+
+    def gains(self, others: list[int]) -> np.ndarray:
+        """Per cell: the gain (nats) of a target there given targets at ``others``."""
+        return self.grid.cover @ (self.weight * ~self._covered(others))
+
+    def new_hits(self, others: list[int]) -> np.ndarray:
+        """Per cell: the detections a target there would explain that ``others`` do not."""
+        return self.grid.cover @ (self.hits & ~self._covered(others)).astype(float)
+
+    def _others(self, k: int) -> list[int]:
+        return [t.cell for i, t in enumerate(self.targets) if i != k]
+
+    def _support(self, target: _Target, gain: np.ndarray) -> float:
+        """log Σ π e^gain over an expected target's gate: its evidence, nats."""
+        return float(logsumexp(target.log_prior + gain[target.gate]))
+
+    def place_expected(self, e: int, expectation: Expectation) -> None:
+        radius = self.config.expected_sigmas * expectation.sigma
+        gate = np.asarray(self.grid.cell_tree.query_ball_point((expectation.x, expectation.y), r=radius), dtype=int)
+        if gate.size == 0:
+            return
+        d2 = ((self.grid.cells[gate] - (expectation.x, expectation.y)) ** 2).sum(axis=1)
+        # normalised per cell of the whole Gaussian, not over the gate's covered cells: prior
+        # mass beyond the sensors' reach (a target leaving) supports nothing
+        log_prior = -0.5 * d2 / expectation.sigma ** 2 - math.log(2 * math.pi * expectation.sigma ** 2 / self.grid.cell ** 2)
+        target = _Target(cell=-1, expectation=e, gate=gate, log_prior=log_prior)
+        if self._support(target, self.gains_alone) >= self.config.expected_gain:
+            gain = self.gains([t.cell for t in self.targets])
+            target.cell = int(gate[np.argmax(gain[gate])])
+            self.targets.append(target)
+
+    def place_new(self) -> bool:
+        others = [t.cell for t in self.targets]
+        gain = np.where(self.new_hits(others) >= self.config.threshold, self.gains(others), -np.inf)
+        best = int(np.argmax(gain))
+        if not gain[best] >= self.config.min_gain:
+            return False
+        self.targets.append(_Target(cell=best))
+        return True
+
+    def settle(self) -> None:
+        """Coordinate ascent: each target moves to its best cell (within its gate) given the others."""
+        for _ in range(_MAX_SWEEPS):
+            moved = False
+            for k, target in enumerate(self.targets):
+                gain = self.gains(self._others(k))
+                cells = target.gate if target.gate is not None else slice(None)
+                best = int(np.argmax(gain[cells]))
+                best = int(target.gate[best]) if target.gate is not None else best
+                if gain[best] > gain[target.cell] + 1e-9:
+                    target.cell = best
+                    moved = True
+            if not moved:
+                return
+
+    def _total(self, cells: list[int]) -> float:
+        return float((self.weight * self._covered(cells)).sum())
+
+    def split_one(self) -> bool:
+        """Replace one new target by the two that explain the scan best, if that gains min_gain."""
+        for k, target in enumerate(self.targets):
+            if target.expectation is not None:
+                continue
+            others = self._others(k)
+            best_pair, best_total = None, self._total(others + [target.cell]) + self.config.min_gain
+            centre = self.grid.cells[target.cell]
+            offset = 0.5 * float(self.grid.cell_range[target.cell])
+            for angle in _SPLIT_ANGLES:
+                u = offset * np.array((math.cos(angle), math.sin(angle)))
+                pair = [int(self.grid.cell_tree.query(centre + u)[1]), int(self.grid.cell_tree.query(centre - u)[1])]
+                for _ in range(4):
+                    for i in (0, 1):
+                        gain = self.gains(others + [pair[1 - i]])
+                        pair[i] = int(np.argmax(gain))
+                total = self._total(others + pair)
+                if total > best_total:
+                    best_pair, best_total = pair, total
+            if best_pair is not None:
+                target.cell = best_pair[0]
+                self.targets.append(_Target(cell=best_pair[1]))
+                return True
+        return False
+
+    def prune(self) -> None:
+        """Drop, one at a time, the target furthest below its threshold given the others."""
+        while self.targets:
+            margins = []
+            for k, target in enumerate(self.targets):
+                gain = self.gains(self._others(k))
+                if target.expectation is not None:
+                    margins.append(self._support(target, gain) - self.config.expected_gain)
+                else:
+                    margins.append(gain[target.cell] - self.config.min_gain)
+            worst = int(np.argmin(margins))
+            if margins[worst] >= 0:
+                return
+            del self.targets[worst]
+            self.settle()
+
+    def report(self, k: int) -> PositionReport:
+        target = self.targets[k]
+        gain = self.gains(self._others(k))
+        near = np.asarray(self.grid.cell_tree.query_ball_point(self.grid.cells[target.cell],
+                                                               r=float(self.grid.cell_range[target.cell])))
+        return weighted_report(self.grid.cells[near], np.exp(gain[near] - gain[target.cell]), self.grid.cell,
+                               weight=max(float(gain[target.cell]), 0.0))
+
+    def shared_copies(self, reports: list[PositionReport], expected) -> list[PositionReport]:
+        """Copies of reports for established tracks hidden in another track's blob (module docstring, 6)."""
+        if not reports:
+            return []
+        c = self.config
+        placed_for = {t.expectation: k for k, t in enumerate(self.targets) if t.expectation is not None}
+        owner_of = {k: e for e, k in placed_for.items()}
+        centres = np.array([(r.x, r.y) for r in reports])
+        copies, copied = [], set()
+        for e, hidden in enumerate(expected):
+            if e in placed_for or hidden.reports < c.shared_age or hidden.unreported > 1:
+                continue
+            gaps = np.hypot(centres[:, 0] - hidden.x, centres[:, 1] - hidden.y)
+            k = int(np.argmin(gaps))
+            if k not in owner_of or k in copied:
+                continue
+            reach = float(self.grid.cell_range[self.targets[k].cell])
+            other = expected[owner_of[k]]
+            if (gaps[k] > c.shared_gap * reach or other.reports < c.shared_age
+                    or math.hypot(hidden.vx - other.vx, hidden.vy - other.vy) < self.grid.shared_speed
+                    or self.grid.depth(hidden.x, hidden.y) < c.shared_edge * reach):
+                continue
+            copied.add(k)
+            r = reports[k]
+            loose = gaps[k] ** 2 + (0.5 * reach) ** 2
+            copies.append(PositionReport(x=r.x, y=r.y, cov=((r.cov[0][0] + loose, r.cov[0][1]),
+                                                             (r.cov[1][0], r.cov[1][1] + loose)),
+                                         weight=0.0, shared=True))
+        return copies

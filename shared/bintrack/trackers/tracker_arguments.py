@@ -1,0 +1,40 @@
+"""The trackers' command-line options, shared by ``bintrack track``, ``bintrack up`` and the
+services that run trackers: argparse flags to :class:`TrackerOptions` and back."""
+
+from __future__ import annotations
+
+import argparse
+
+from bintrack.argtypes import int_at_least
+from bintrack.trackers import PEER_TRACKERS, TrackerOptions
+from bintrack.trackers.multi.mcmcda import MCMCDAConfig
+
+
+def add_tracker_arguments(parser: argparse.ArgumentParser) -> None:
+    """The trackers' options (but ``--speed``), alike for ``bintrack track``, ``up`` and the services."""
+    parser.add_argument("--window", type=int_at_least(1), help="line-fit: estimates in the fitted history (default: 10); "
+                        "velocity-plane, svm, ppr, motion-rw: periods per estimate (default: all so far; motion-rw: 1)")
+    parser.add_argument("--seed", type=int, default=0, help="mcmcda, motion-rw: seed (default: %(default)s)")
+    parser.add_argument("--n-mc", type=int_at_least(1), help=f"mcmcda: MH iterations per scan (default: {MCMCDAConfig.n_mc})")
+    parser.add_argument("--scans", type=int_at_least(2), help=f"mcmcda: sliding window, scans (default: {MCMCDAConfig.window})")
+    parser.add_argument("--estimates", choices=PEER_TRACKERS, metavar="TRACKER",
+                        help="mcmcda: also take this peer tracker's estimates as position reports")
+
+
+def tracker_arguments(options: TrackerOptions) -> tuple[str, ...]:
+    """The command-line options that give a service ``options`` (but ``--estimates``, which
+    decides the services themselves)."""
+    out: list[str] = []
+    for flag, value in (("--speed", options.speed), ("--window", options.window), ("--n-mc", options.n_mc),
+                        ("--scans", options.scans)):
+        if value is not None:
+            out += [flag, str(value)]
+    if options.seed:
+        out += ["--seed", str(options.seed)]
+    return tuple(out)
+
+
+def tracker_options(args: argparse.Namespace) -> TrackerOptions:
+    """The ``TrackerOptions`` of parsed command-line options (absent ones keep their defaults)."""
+    fields = {name: getattr(args, name) for name in ("speed", "window", "seed", "n_mc", "scans", "estimates") if hasattr(args, name)}
+    return TrackerOptions(**{k: v for k, v in fields.items() if v is not None})
