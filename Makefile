@@ -7,14 +7,18 @@ STAMP  := $(VENV)/.installed
 
 .PHONY: demo test datasets clean bench
 
+PIP := $(PY) -m pip install -qq --disable-pip-version-check
+
+# Quiet: a first run prints one line here, then the command's own output (pip's errors still show).
 $(STAMP): pyproject.toml
-	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
-	touch $(STAMP)
+	@echo "make: installing bintrack and its dependencies into $(VENV) (first run only)"
+	@$(PYTHON) -m venv $(VENV)
+	@$(PIP) --upgrade pip
+	@$(PIP) -e '.[test]'
+	@touch $(STAMP)
 
 demo: $(STAMP)
-	$(BINTRACK) demo
+	@$(BINTRACK) demo
 
 test: $(STAMP)
 	$(PY) -m pytest -q
@@ -26,8 +30,8 @@ BENCH_STAMP := $(VENV)/.installed-bench
 BENCH_ARGS ?=
 
 $(BENCH_STAMP): $(STAMP) pyproject.toml
-	$(PY) -m pip install --quiet -e '.[test,bench]'
-	touch $(BENCH_STAMP)
+	@$(PIP) -e '.[test,bench]'
+	@touch $(BENCH_STAMP)
 
 bench: $(BENCH_STAMP)
 	$(PY) benchmarks/mcmcda_vs_stonesoup.py $(BENCH_ARGS)
