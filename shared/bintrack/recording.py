@@ -57,6 +57,7 @@ from .messages import (
     SensorState,
     TrackSet,
     Transition,
+    TruthSample,
     VelocityEstimate,
     decode,
 )
@@ -79,6 +80,7 @@ KIND_TYPES: dict[str, type[Message]] = {
     "tracks": TrackSet,
     "laser_objects": LineObjectEstimate,
     "motion_velocity": VelocityEstimate,
+    "truth": TruthSample,
     "deployment": Deployment,
     "clock": Clock,
     "eos": EndOfStream,
