@@ -220,3 +220,56 @@ def test_the_live_page_draws_the_deployment_the_tracks_and_the_detecting_sensors
     print(f"frame interval: median {median:.1f} ms, p95 {intervals[int(0.95 * len(intervals))]:.1f} ms "
           f"over {len(intervals)} frames")
     assert median < 100.0
+
+
+def test_the_slider_seeks_a_recording_and_the_page_shows_that_times_tracks(browser, live_run):
+    path = finished(live_run)
+    scans = [message for _, message in open_recording(path).messages({"tracks"})]
+    middle = len(scans) // 2
+    i, scan = next((i, s) for i, s in enumerate(scans) if i >= middle and len(s.tracks) >= 2)
+    later = scans[i + 1].t
+    seek = scan.t + (later - scan.t) / 2      # between this scan and the next one
+    view = Process("view", str(path), "--port", str(free_port()))
+    try:
+        url = view.wait_for("view: map on").split("map on ", 1)[1].split()[0]
+        page = browser.new_page(viewport={"width": 1100, "height": 800})
+        errors: list[str] = []
+        page.on("pageerror", lambda exc: errors.append(str(exc)))
+        page.goto(url)
+        page.wait_for_function("window.bintrack && bintrack.S.deployment !== null && bintrack.S.mode === 'recording'")
+        assert page.is_visible("#slider") and page.evaluate("bintrack.sensorCount()") == 144
+        page.locator("#slider").fill(repr(seek))
+        page.wait_for_function(f"Number(document.getElementById('event-time').dataset.t) === {seek!r}")
+        page.wait_for_function(f"bintrack.trackLabels().length > 0 && bintrack.trackLabels()[0].t === {scan.t!r}")
+        labels = page.evaluate("bintrack.trackLabels()")
+        assert sorted(label["track"] for label in labels) == sorted(track.track for track in scan.tracks)
+        for label in labels:
+            track = next(tr for tr in scan.tracks if tr.track == label["track"])
+            assert label["x"] == pytest.approx(track.x, abs=1e-4) and label["y"] == pytest.approx(track.y, abs=1e-4)
+        shot = ARTEFACTS / "recording-seek.png"
+        page.screenshot(path=str(shot))
+        print(f"\nscreenshot: {shot}")
+        # Play on at 4×: event time and the scans move forward; pause stops them.
+        page.select_option("#speed", "4")
+        page.click("#play")
+        page.wait_for_function(f"bintrack.trackLabels().length > 0 && bintrack.trackLabels()[0].t > {later!r}")
+        page.click("#play")
+        page.wait_for_function("bintrack.S.status.playing === false")
+        paused = page.evaluate("bintrack.S.status.position")
+        assert paused > seek
+        # Seeking back shows the earlier picture again.
+        page.locator("#slider").fill(repr(seek))
+        page.wait_for_function(f"bintrack.trackLabels().length > 0 && bintrack.trackLabels()[0].t === {scan.t!r}")
+        assert not errors, errors
+        page.close()
+    finally:
+        assert view.stop() == 0, view.log
+
+
+def test_view_of_a_file_that_is_not_a_recording_fails_with_one_line(tmp_path):
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not an mcap file")
+    result = subprocess.run([sys.executable, "-m", "bintrack.cli", "view", str(bad), "--port", str(free_port())],
+                            capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert result.returncode == 2
+    assert result.stderr.strip().count("\n") == 0 and "not an MCAP recording" in result.stderr
