@@ -357,9 +357,7 @@ function apply(item) {
     case "snapshot": applySnapshot(item); break;
     case "deployment": setDeployment(item); break;
     case "sensor": setSensor(item.id, item.v, item.t); break;
-    case "tracks": trackArrivals.push([item.t, performance.timeOrigin + performance.now()]);
-      if (trackArrivals.length > 2000) trackArrivals.splice(0, 1000);
-      applyTracks(item); break;
+    case "tracks": applyTracks(item); break;
     case "reports": applyReports(item); break;
     case "estimate": applyEstimate(item); break;
     case "object": applyObject(item); break;
@@ -418,8 +416,11 @@ function connect() {
   socket = new WebSocket(`${proto}//${location.host}/ws`);
   socket.onopen = () => { if ($("banner").dataset.server === "gone") { showBanner(""); $("banner").dataset.server = ""; } };
   socket.onmessage = (ev) => {
+    const arrived = performance.timeOrigin + performance.now();
     const batch = JSON.parse(ev.data);
     S.received += batch.length;
+    for (const item of batch) if (item.k === "tracks") trackArrivals.push([item.t, arrived]);
+    if (trackArrivals.length > 2000) trackArrivals.splice(0, 1000);
     if (batch.length && batch[0].k === "snapshot") S.pending = [];
     for (const item of batch) S.pending.push(item);
     if (S.pending.length > MAX_PENDING) { S.pending = []; send({ cmd: "snapshot" }); }
