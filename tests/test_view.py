@@ -214,6 +214,10 @@ def test_the_live_page_draws_the_deployment_the_tracks_and_the_detecting_sensors
     transitions = {(m.sensor, m.t): m.value for _, m in recording.messages({"transition"})}
     for sensor in lit:
         assert transitions[(sensor["sensor"], sensor["t"])] == sensor["value"] == 1, sensor
+    # Replay published truth.csv beside the events, in event time; the page drew it dashed.
+    truth = [message for _, message in recording.messages({"truth"})]
+    rows = (DARPA3 / "truth.csv").read_text().splitlines()[1:]
+    assert len(truth) == len(rows) and [m.t for m in truth] == sorted(m.t for m in truth)
     # Interactive while data flows, on a loaded 2-core box: the median frame under 100 ms (> 10 frames/s;
     # measured 33 ms at load 10, 17 ms for an empty page).
     median = intervals[len(intervals) // 2]
@@ -273,3 +277,79 @@ def test_view_of_a_file_that_is_not_a_recording_fails_with_one_line(tmp_path):
                             capture_output=True, text=True, cwd=REPO, timeout=60)
     assert result.returncode == 2
     assert result.stderr.strip().count("\n") == 0 and "not an MCAP recording" in result.stderr
+
+
+def test_the_page_says_when_the_deployment_the_stack_the_bus_or_the_view_server_is_missing(browser):
+    import zenoh
+
+    from bintrack.bus import client_config, router_config
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = zenoh.open(router_config([endpoint]))
+    view = Process("view", "--net", "gone", "--port", str(free_port()), "-e", endpoint)
+    session = None
+    try:
+        url = view.wait_for("view: map on").split("map on ", 1)[1].strip()
+        page = browser.new_page()
+        page.goto(url)
+        banner = "document.getElementById('banner')"
+        page.wait_for_function(f"{banner}.textContent.includes('waiting for the deployment')")
+        # A deployment appears, but no bintrack service holds a liveliness token: the stack is gone.
+        deployment = Deployment.model_validate_json((DARPA3 / "deployment.json").read_text())
+        session = zenoh.open(client_config([endpoint]))
+        from bintrack.messages import encode
+
+        payload = encode(deployment.model_copy(update={"name": "gone"}))
+        queryable = session.declare_queryable("bintrack/gone/deployment",
+                                              lambda query: query.reply("bintrack/gone/deployment", payload))
+        page.wait_for_function(f"{banner}.textContent.includes('stack gone')", timeout=30_000)
+        assert page.evaluate("bintrack.sensorCount()") == 144
+        queryable.undeclare()
+        session.close()
+        session = None
+        router.close()
+        router = None
+        page.wait_for_function(f"{banner}.textContent.includes('bus gone')", timeout=30_000)
+        assert view.stop() == 0, view.log
+        page.wait_for_function(f"{banner}.textContent.includes('view server gone')", timeout=30_000)
+        assert page.is_visible("#banner")
+        page.close()
+    finally:
+        view.stop()
+        if session is not None:
+            session.close()
+        if router is not None:
+            router.close()
+
+
+def test_a_page_opened_mid_run_gets_the_deployment_and_the_latest_tracks_from_the_queryables(browser):
+    import zenoh
+
+    from bintrack.bus import client_config, router_config
+    from bintrack.messages import encode
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = zenoh.open(router_config([endpoint]))
+    session = zenoh.open(client_config([endpoint]))
+    deployment = Deployment.model_validate_json((DARPA3 / "deployment.json").read_text())
+    answers = {"bintrack/mid/deployment": encode(deployment.model_copy(update={"name": "mid"})),
+               "bintrack/mid/tracks": encode(TrackSet(t=12.5, tracker="mcmcda", tracks=[
+                   {"track": 4, "x": 10.0, "y": 20.0, "vx": 1.0, "vy": 0.0}, {"track": 9, "x": 30.0, "y": 5.0}]))}
+    queryables = [session.declare_queryable(key, lambda query, key=key: query.reply(key, answers[key]))
+                  for key in answers]
+    view = Process("view", "--net", "mid", "--port", str(free_port()), "-e", endpoint)
+    try:
+        url = view.wait_for("view: map on").split("map on ", 1)[1].strip()
+        page = browser.new_page()
+        page.goto(url)
+        page.wait_for_function("bintrack.trackLabels().length === 2", timeout=30_000)
+        labels = sorted(page.evaluate("bintrack.trackLabels()"), key=lambda label: label["track"])
+        assert labels == [{"track": 4, "x": 10.0, "y": 20.0, "t": 12.5}, {"track": 9, "x": 30.0, "y": 5.0, "t": 12.5}]
+        assert page.evaluate("bintrack.sensorCount()") == 144
+        page.close()
+    finally:
+        assert view.stop() == 0, view.log
+        for queryable in queryables:
+            queryable.undeclare()
+        session.close()
+        router.close()
