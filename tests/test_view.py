@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from bintrack.messages import Deployment, TrackSet, Transition, TruthSample
+from bintrack.messages import Clock, Deployment, TrackSet, Transition, TruthSample, encode
 from bintrack.recording import open_recording
 from bintrack.view.map_messages import deployment_item, message_item
 from bintrack.view.map_server import PageFeed
@@ -270,6 +270,25 @@ def test_the_slider_seeks_a_recording_and_the_page_shows_that_times_tracks(brows
         assert view.stop() == 0, view.log
 
 
+def test_view_on_a_taken_port_fails_with_one_line(tmp_path):
+    import socket
+
+    from bintrack.recording import RecordingWriter
+
+    recording = tmp_path / "tiny.mcap"
+    deployment = Deployment.model_validate_json((DARPA3 / "deployment.json").read_text())
+    with RecordingWriter(recording, deployment, "darpa-grid") as writer:
+        writer.write("bintrack/darpa-grid/clock", 1.0, encode(Clock(t=1.0)))
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        result = subprocess.run([sys.executable, "-m", "bintrack.cli", "view", str(recording), "--port", str(port)],
+                                capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert result.returncode == 2
+    assert result.stderr.strip().count("\n") == 0 and f"cannot serve the map on 127.0.0.1:{port}" in result.stderr
+
+
 def test_view_of_a_file_that_is_not_a_recording_fails_with_one_line(tmp_path):
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"not an mcap file")
@@ -297,8 +316,6 @@ def test_the_page_says_when_the_deployment_the_stack_the_bus_or_the_view_server_
         # A deployment appears, but no bintrack service holds a liveliness token: the stack is gone.
         deployment = Deployment.model_validate_json((DARPA3 / "deployment.json").read_text())
         session = zenoh.open(client_config([endpoint]))
-        from bintrack.messages import encode
-
         payload = encode(deployment.model_copy(update={"name": "gone"}))
         queryable = session.declare_queryable("bintrack/gone/deployment",
                                               lambda query: query.reply("bintrack/gone/deployment", payload))
@@ -326,7 +343,6 @@ def test_a_page_opened_mid_run_gets_the_deployment_and_the_latest_tracks_from_th
     import zenoh
 
     from bintrack.bus import client_config, router_config
-    from bintrack.messages import encode
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = zenoh.open(router_config([endpoint]))
