@@ -40,6 +40,9 @@ legend.onAdd = () => {
   div.innerHTML = [
     swatch('<circle cx="13" cy="7" r="6" fill="#90a4ae" fill-opacity=".15" stroke="#90a4ae"/>', "sensor range"),
     swatch('<circle cx="13" cy="7" r="6" fill="#ff9800" fill-opacity=".5" stroke="#ef6c00"/>', "detecting (fades after)"),
+    swatch('<circle cx="7" cy="7" r="5" fill="#66bb6a" stroke="#2e7d32"/><circle cx="19" cy="7" r="5" fill="#ef5350" stroke="#c62828"/>', "motion sensor: closer / farther"),
+    swatch('<path d="M13 7 L24 2 A12 12 0 0 1 24 12 Z" fill="#ff9800" fill-opacity=".6" stroke="#ef6c00"/>', "lit sector"),
+    swatch('<path d="M1 11 L12 7 L25 3" stroke="#2e7d32" stroke-width="3" fill="none"/>', "velocity estimate (10 s)"),
     swatch('<ellipse cx="13" cy="7" rx="10" ry="5" fill="#ab47bc" fill-opacity=".2" stroke="#6a1b9a"/>', "fused report, 95 % ellipse"),
     swatch('<circle cx="13" cy="7" r="3.5" fill="#4dd0e1" stroke="#00838f"/>', "peer estimate"),
     swatch('<path d="M1 10 L18 5" stroke="#e53935" stroke-width="2.5"/><circle cx="20" cy="5" r="4" fill="#e53935"/>', "track: id, tail, velocity (2 s)"),
