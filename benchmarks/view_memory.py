@@ -100,6 +100,12 @@ def main() -> int:
         while time.monotonic() < deadline and not {"view", "basestation"} <= set(pids):
             time.sleep(0.5)
             pids = children(up.pid)
+        while time.monotonic() < deadline:   # the view's port answers
+            try:
+                with socket.create_connection(("127.0.0.1", port), timeout=1):
+                    break
+            except OSError:
+                time.sleep(0.3)
         with sync_playwright() as playwright:
             browser = playwright.chromium.launch(executable_path=browser_path,
                                                  args=LAUNCH_ARGS + ["--enable-precise-memory-info"])
@@ -127,7 +133,7 @@ def main() -> int:
         for name, points in samples.items():
             print(summary(name, points))
     finally:
-        up.terminate()
+        up.send_signal(signal.SIGINT)   # `up` stops its services on Ctrl-C (SIGTERM would orphan them)
         up.wait(timeout=60)
     return 0
 
