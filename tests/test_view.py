@@ -13,6 +13,7 @@ import asyncio
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import threading
@@ -149,8 +150,9 @@ class Process:
         return "\n".join(self.lines[-40:])
 
     def stop(self, timeout: float = 30.0) -> int:
+        """Ctrl-C (SIGINT): `bintrack up` then stops its services too; the view exits 0."""
         if self.proc.poll() is None:
-            self.proc.terminate()
+            self.proc.send_signal(signal.SIGINT)
         code = self.proc.wait(timeout=timeout)
         self._reader.join(timeout)
         return code
