@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 BINTRACK := $(VENV)/bin/bintrack
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test datasets clean bench
+.PHONY: demo test datasets clean bench browser
 
 PIP := $(PY) -m pip install -qq --disable-pip-version-check
 
@@ -20,8 +20,22 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	@$(BINTRACK) demo
 
-test: $(STAMP)
+test: $(STAMP) browser
 	$(PY) -m pytest -q
+
+# The map's browser tests drive Debian's chromium-headless-shell (Playwright never downloads a
+# browser). Installed here with apt-get when missing and apt-get is usable (root); elsewhere
+# those tests are skipped with one line naming the package.
+BROWSER_PACKAGE := chromium-headless-shell
+browser:
+	@if ! command -v chromium-headless-shell >/dev/null 2>&1 && ! command -v chromium >/dev/null 2>&1; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(BROWSER_PACKAGE) >/dev/null \
+	      || echo "make: could not install $(BROWSER_PACKAGE); the browser tests will be skipped"; \
+	  else \
+	    echo "make: $(BROWSER_PACKAGE) is not installed (apt-get install $(BROWSER_PACKAGE)); the browser tests will be skipped"; \
+	  fi; \
+	fi
 
 # Our MCMCDA against Stone Soup's GNN and JPDA (issue 6): needs the optional extra `bench`
 # (Stone Soup), which only this target installs. 3–6 min on 2 cores; `make bench BENCH_ARGS=--quick`

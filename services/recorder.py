@@ -6,7 +6,7 @@
 Why MCAP: it is how pub/sub systems record their buses (ROS 2 bags, Foxglove): one channel per
 topic — here per key expression — with a schema per message type (the pydantic JSON Schema,
 payloads kept as the msgpack bytes that were on the bus), indexed by time, readable by
-Foxglove and the ``mcap`` CLI. The chunked writer leaves a readable prefix if the recorder
+the ``mcap`` CLI (for Foxglove, which does not decode msgpack: ``bintrack export --foxglove``). The chunked writer leaves a readable prefix if the recorder
 dies; a stop by SIGINT/SIGTERM finalises the file. Layout: :mod:`bintrack.live.recording`.
 
 It waits for the ``deployment`` queryable and stores the deployment, subscribes to

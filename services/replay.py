@@ -6,7 +6,7 @@
 
 Serves the ``deployment`` queryable, waits for the ``--wait-for`` services, then executes
 :func:`bintrack.live.replay_schedule.schedule`: a dataset's events as ``RawSample`` on
-``raw/<sensor>``, a recording's samples on their recorded keys with the payload bytes
+``raw/<sensor>`` (and its truth.csv rows, if any, as ``TruthSample`` on ``truth``), a recording's samples on their recorded keys with the payload bytes
 unchanged; ``Clock`` ticks on ``clock``, each published only once every live consumer (any
 service holding an ``alive/`` token, replays excepted) has reported progress up to the tick
 ``--max-ahead`` before it; at the end ``EndOfStream`` on ``control/eos``. Exits 0 after the
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import heapq
 import logging
 import time
 from collections.abc import Callable, Iterable
@@ -27,9 +28,9 @@ import zenoh
 from bintrack.argtypes import int_at_least, non_negative_float, positive_float
 from bintrack.live.bus import Service, add_bus_arguments, service_main
 from bintrack.errors import CommandError
-from bintrack.formats import FormatError, open_dataset
+from bintrack.formats import FormatError, TruthRow, open_dataset
 from bintrack.keys import Keys, parse_key
-from bintrack.messages import Clock, EndOfStream, RawSample, encode
+from bintrack.messages import Clock, EndOfStream, RawSample, TruthSample, encode
 from bintrack.live.recording import Record, open_recording, replay_items, shift_payload
 from bintrack.live.replay_schedule import Consumers, End, Pacer, Publish, Tick, schedule
 
@@ -85,7 +86,7 @@ class Replay(Service):
     def __init__(self, args: argparse.Namespace):
         path = Path(args.source)
         if path.suffix == ".mcap":
-            self.recording, self.dataset = open_recording(path), None
+            self.recording, self.dataset, self.truth = open_recording(path), None, []
             self.deployment, source_net = self.recording.deployment, self.recording.net
             self.total = None
         else:
@@ -93,6 +94,8 @@ class Replay(Service):
             self.deployment = self.dataset.deployment
             source_net = self.deployment.name
             self.total = sum(1 for _ in self.dataset.events())  # validates every row before anything is published
+            # truth.csv, if the dataset has one, is published on `truth` (sorted by t; read and checked now)
+            self.truth = sorted(self.dataset.truth(), key=lambda row: row.t) if self.dataset.has_truth else []
         args.net = args.net or source_net
         try:
             Keys(args.net)
@@ -165,13 +168,19 @@ class Replay(Service):
 
     def _pass(self) -> Iterable[tuple[float, object]]:
         if self.dataset is not None:
-            return ((e.t, e) for e in self.dataset.events() if self._keep(self.keys.raw(e.sensor)))
+            events = ((e.t, e) for e in self.dataset.events() if self._keep(self.keys.raw(e.sensor)))
+            if self.truth and self._keep(self.keys.truth()):
+                # truth.csv rows beside the events in event time; an event before a truth row at the same t
+                return heapq.merge(events, ((row.t, row) for row in self.truth), key=lambda item: item[0])
+            return events
         return replay_items(self.recording, self._keep)
 
     def _publish(self, action: Publish) -> None:
         item = action.item
         if isinstance(item, Record):
             self._put(self.keys.prefix + item.key[len(self.source_prefix):], shift_payload(item.payload, action.shift))
+        elif isinstance(item, TruthRow):
+            self._put(self.keys.truth(), encode(TruthSample(t=action.t, target=item.target, x=item.x, y=item.y)))
         else:
             self._put(self.keys.raw(item.sensor), encode(RawSample(t=action.t, sensor=item.sensor, value=item.value)))
         self.published += 1

@@ -22,6 +22,7 @@ import subprocess
 import sys
 import time
 import tomllib
+import urllib.request
 from pathlib import Path
 
 import pytest
@@ -115,7 +116,7 @@ def dependency_order(services: dict) -> list[str]:
 
 
 def test_every_service_has_an_image_or_our_build():
-    assert "router" in SERVICES and set(BINTRACK) == {"replay", "sensor_agent", "peer_agent", "basestation", "recorder"}
+    assert "router" in SERVICES and set(BINTRACK) == {"replay", "sensor_agent", "peer_agent", "basestation", "recorder", "view"}
     for name, service in SERVICES.items():
         assert service.get("image") or uses_our_build(service), name
         for dependency in service.get("depends_on", {}):
@@ -216,7 +217,8 @@ def test_every_module_answers_help():
 
 def local_args(service: dict, endpoint: str, tmp_path: Path) -> list[str]:
     """The compose command's options for a local run: the router endpoint and the volumes'
-    container paths rewritten to the test router and to host folders."""
+    container paths rewritten to the test router and to host folders, a published port to a
+    free loopback port (``service["local_port"]``)."""
     mounts = {}
     for volume in service.get("volumes", []):
         source, target = volume.split(":")[:2]
@@ -226,10 +228,15 @@ def local_args(service: dict, endpoint: str, tmp_path: Path) -> list[str]:
             host = tmp_path / source
             host.mkdir(parents=True, exist_ok=True)
         mounts[target] = host
+    published = {mapping.rsplit(":", 1)[1] for mapping in service.get("ports", [])}
     args = []
     for arg in service["command"][1:]:
         if arg == ROUTER_ENDPOINT:
             arg = endpoint
+        elif args and args[-1] == "--port" and arg in published:
+            arg = service.setdefault("local_port", str(free_port()))
+        elif args and args[-1] == "--bind":
+            arg = "127.0.0.1"
         for target, host in mounts.items():
             if arg == target or arg.startswith(target + "/"):
                 arg = str(host) + arg[len(target):]
@@ -275,6 +282,11 @@ def test_the_whole_stack_starts_is_healthy_and_stops_cleanly(zenoh_router, servi
     # The stack does its job: tracks arrive, the base station's queryable answers, all decode.
     scan, latest, bad = asyncio.run(first_tracks(zenoh_router))
     assert scan.tracker == "equal-weight" and latest is not None and latest.t >= scan.t and bad == 0
+    # The view serves the map on its published port, with the deployment in its state.
+    port = BINTRACK["view"]["local_port"]
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/state.json", timeout=10) as response:
+        state = json.load(response)
+    assert state["deployment"]["name"] == "darpa-grid" and len(state["deployment"]["sensors"]) == 144
 
     for name in reversed(order):   # as compose stops them
         started[name].proc.send_signal(signal.SIGTERM)

@@ -47,7 +47,7 @@ def live_and_offline(dataset: Path, tracker: str, tmp: Path, speed: str = "0",
     rows for each of ``exports``."""
     recording = tmp / f"{tracker}.mcap"
     up = bintrack("up", str(dataset), "--speed", speed, "--tracker", tracker, *options, "--record", str(recording),
-                  "--exit-at-end", "--listen", f"tcp/127.0.0.1:{free_port()}")
+                  "--exit-at-end", "--listen", f"tcp/127.0.0.1:{free_port()}", "--no-view")
     assert up.returncode == 0, up.stderr[-3000:]
     offline = tmp / f"{tracker}-offline.csv"
     assert bintrack("track", str(dataset), "--tracker", tracker, *options, "--out", str(offline)).returncode == 0
@@ -116,7 +116,7 @@ def test_live_equals_offline_for_closer_farther_sensors(motion_dataset, tracker,
 def test_live_equals_offline_for_the_adaptive_basis_on_the_laser_testbed(tmp_path):
     recording = tmp_path / "laser.mcap"
     up = bintrack("up", str(LASER), "--speed", "0", "--tracker", "adaptive-basis", "--record", str(recording),
-                  "--exit-at-end", "--listen", f"tcp/127.0.0.1:{free_port()}")
+                  "--exit-at-end", "--listen", f"tcp/127.0.0.1:{free_port()}", "--no-view")
     assert up.returncode == 0, up.stderr[-3000:]
     offline, exported = tmp_path / "offline.csv", tmp_path / "live.csv"
     assert bintrack("track", str(LASER), "--tracker", "adaptive-basis", "--out", str(offline)).returncode == 0
@@ -203,7 +203,7 @@ def test_compose_runs_the_commands_bintrack_up_runs():
     compose = yaml.safe_load((REPO / "docker-compose.yml").read_text())["services"]
     expected = stack_commands(tracker="equal-weight", endpoint="tcp/router:7447", net="darpa-grid",
                               source="/data/datasets/darpa-grid-3", speed=1, loop=True,
-                              record="/data/out/recording.mcap")
+                              record="/data/out/recording.mcap", view_port=8080, view_bind="0.0.0.0")
     for command in expected:
         assert compose[command.name]["command"] == [command.module, *command.args], command.name
 

@@ -23,6 +23,7 @@ _FIXED = {
     "tracks": "tracks",
     "laser/objects": "laser_objects",
     "motion/velocity": "motion_velocity",
+    "truth": "truth",
     "deployment": "deployment",
     "clock": "clock",
     "control/eos": "eos",
@@ -76,6 +77,10 @@ class Keys:
     def motion_velocity(self) -> str:
         return f"{self.prefix}/motion/velocity"
 
+    def truth(self) -> str:
+        """Replay of a dataset with truth.csv: where the targets really are (``TruthSample``)."""
+        return f"{self.prefix}/truth"
+
     def deployment(self) -> str:
         return f"{self.prefix}/deployment"
 
@@ -111,7 +116,7 @@ class Keys:
 @dataclass(frozen=True)
 class ParsedKey:
     """What a concrete key names: ``kind`` is one of raw, transition, state, estimate,
-    fusion_reports, tracks, laser_objects, motion_velocity, deployment, clock, eos, alive,
+    fusion_reports, tracks, laser_objects, motion_velocity, truth, deployment, clock, eos, alive,
     progress, done (the last two are flow control, beyond DESIGN §3)."""
 
     net: str

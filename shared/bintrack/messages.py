@@ -324,6 +324,16 @@ class VelocityEstimate(Message):
     y: float | None = None
 
 
+class TruthSample(Message):
+    """One row of a dataset's truth.csv, replayed in event time beside the events (optional
+    ``truth`` key): where target ``target`` really was at ``t``."""
+
+    t: Seconds
+    target: str = Field(description="target id as in truth.csv")
+    x: float = Field(description="position, deployment units")
+    y: float = Field(description="position, deployment units")
+
+
 class Clock(Message):
     """Event time advances even when no sensor reports. Also a service's progress report."""
 
@@ -346,6 +356,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     TrackSet,
     LineObjectEstimate,
     VelocityEstimate,
+    TruthSample,
     Clock,
     EndOfStream,
     Deployment,

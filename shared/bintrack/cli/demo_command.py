@@ -32,6 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tracker", choices=TRACKER_NAMES, default=DEMO_TRACKER, help="tracker (default: %(default)s)")
     parser.add_argument("--speed", type=float, default=0.0,
                         help="replay speed; 0 = as fast as the services keep up (default: %(default)s)")
+    parser.add_argument("--no-view", dest="view", action="store_false", help="do not start the map")
+    parser.add_argument("--view-port", type=int, default=8080, metavar="PORT",
+                        help="HTTP port of the map while the stack runs (default: %(default)s)")
     parser.add_argument("--out", type=Path, default=Path("out/demo"),
                         help="folder for recording.mcap, tracks.csv and demo.png (default: %(default)s)")
 
@@ -61,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
           f"tracker {args.tracker}, live stack at speed {args.speed:g} (0 = as fast as it keeps up)")
     stack = argparse.Namespace(source=str(args.dataset), tracker=args.tracker, speed=args.speed, loop=False,
                                record=str(recording), exit_at_end=True, listen=_free_endpoint(), net=None,
-                               progress_interval=1.0)
+                               progress_interval=1.0, view=args.view, view_port=args.view_port,
+                               view_bind="127.0.0.1")
     status = up.run(stack)
     if status != 0:
         return status

@@ -1,5 +1,6 @@
 """``bintrack export RECORDING --what tracks|estimates|objects|velocity --out FILE``: the results
-in a recording, in the files of DESIGN §6.
+in a recording, in the files of DESIGN §6; ``bintrack export RECORDING --foxglove OUT.mcap``: a
+copy Foxglove can open (:mod:`bintrack.live.foxglove_export`).
 
 * ``tracks``: every ``TrackSet`` → one tracks.csv row per track;
 * ``estimates``: every ``LocalEstimate`` → a tracks.csv row of track 0;
@@ -17,7 +18,9 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from pathlib import Path
 
+from bintrack.errors import CommandError
 from bintrack.formats import ObjectRow, TrackRow, write_objects, write_tracks
 from bintrack.pipeline import output_objects, output_rows
 from bintrack.live.recording import Recording, open_recording
@@ -43,13 +46,32 @@ def object_rows(recording: Recording) -> list[ObjectRow]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recording", metavar="RECORDING", help="a recording (FILE.mcap) made by bintrack record")
-    parser.add_argument("--what", required=True, choices=tuple(WHAT), help="which results to export")
-    parser.add_argument("--out", required=True, metavar="FILE",
+    parser.add_argument("--what", choices=tuple(WHAT), help="which results to export")
+    parser.add_argument("--out", metavar="FILE",
                         help="tracks.csv (objects.csv for --what objects) to write; '-' for standard output")
+    parser.add_argument("--foxglove", metavar="OUT.mcap",
+                        help="instead: write every message JSON-encoded, plus a foxglove.SceneUpdate channel /scene, "
+                        "for Foxglove")
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.foxglove is not None:
+        if args.what is not None or args.out is not None:
+            raise CommandError("--foxglove writes the whole recording: give it without --what and --out")
+        if not args.foxglove.endswith(".mcap"):
+            raise CommandError(f"--foxglove {args.foxglove}: the output's name must end in .mcap")
+    elif args.what is None or args.out is None:
+        raise CommandError("give --what and --out (or --foxglove OUT.mcap)")
     recording = open_recording(args.recording)
+    if args.foxglove is not None:
+        from bintrack.live.foxglove_export import export_foxglove
+
+        if Path(args.foxglove).resolve() == Path(args.recording).resolve():
+            raise CommandError("--foxglove must not overwrite the recording itself")
+        counts = export_foxglove(recording, args.foxglove)
+        print(f"{sum(counts.values())} JSON messages written to {args.foxglove} "
+              f"({', '.join(f'{kind} {n}' for kind, n in sorted(counts.items()))})", file=sys.stderr)
+        return 0
     if not recording.complete:
         print(f"bintrack export: warning: {args.recording} was not finalised; exporting its readable prefix",
               file=sys.stderr)

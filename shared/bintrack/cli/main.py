@@ -27,6 +27,7 @@ SUBCOMMANDS = {
     "record": ("bintrack.cli.record_command", "record bintrack/<net>/** into an MCAP recording until stopped"),
     "export": ("bintrack.cli.export_command", "write a recording's tracks, estimates, objects or velocities as CSV"),
     "watch": ("bintrack.cli.watch_command", "print live tracks, estimates or transitions of a network until Ctrl-C"),
+    "view": ("bintrack.cli.view_command", "the map in the browser: the live network, or a recording with a time slider"),
     "bounds": ("bintrack.cli.bounds_command", "print the analytic accuracy limits of the arc tracker (paper 001 §4)"),
 }
 

@@ -1,8 +1,9 @@
-"""``bintrack up [DIR] [--tracker NAME] [--speed X] [--record FILE] [--exit-at-end]``.
+"""``bintrack up [DIR] [--tracker NAME] [--speed X] [--record FILE] [--exit-at-end] [--no-view]``.
 
 The whole stack on this machine without Docker: a Zenoh router in this process on loopback,
 and every service as a subprocess with the commands docker-compose uses
-(:mod:`bintrack.live.stack`). Shows live progress; stops everything on Ctrl-C or, with
+(:mod:`bintrack.live.stack`), the map (``bintrack view``) among them unless ``--no-view``.
+Shows live progress; stops everything on Ctrl-C or, with
 ``--exit-at-end``, once the replay's end has been processed by every service.
 """
 
@@ -29,6 +30,7 @@ from bintrack.messages import Clock, MessageError, decode
 from bintrack.live.stack import stack_commands
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_arguments, tracker_options
 from bintrack.trackers import TRACKER_NAMES, check_options as make_tracker_check
+from bintrack.view.map_server import page_url
 
 SHOWN = (("raw", "events"), ("transition", "transitions"), ("estimate", "estimates"), ("tracks", "tracks"))
 STOP_TIMEOUT = 15.0
@@ -46,6 +48,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--listen", default=DEFAULT_ENDPOINT, metavar="ENDPOINT",
                         help="where the embedded router listens (default: %(default)s)")
     parser.add_argument("--net", help="network name (default: the dataset's deployment name, else 'default')")
+    parser.add_argument("--no-view", dest="view", action="store_false",
+                        help="do not start the map (the view service)")
+    parser.add_argument("--view-port", type=int, default=8080, metavar="PORT",
+                        help="HTTP port of the map (default: %(default)s)")
+    parser.add_argument("--view-bind", default="127.0.0.1", metavar="ADDRESS",
+                        help="address the map is served on (default: %(default)s, this machine only)")
     parser.add_argument("--progress-interval", type=positive_float, default=1.0, metavar="S",
                         help="seconds between progress lines (default: %(default)s)")
 
@@ -131,7 +139,9 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(str(exc)) from None
     commands = stack_commands(tracker=args.tracker, endpoint=args.listen, net=net, source=args.source,
                               speed=args.speed, loop=args.loop, record=args.record, estimates=options.estimates,
-                              tracker_args=tracker_arguments(options))
+                              tracker_args=tracker_arguments(options),
+                              view_port=args.view_port if getattr(args, "view", False) else None,
+                              view_bind=getattr(args, "view_bind", "127.0.0.1"))
     try:
         router = zenoh.open(router_config([args.listen]))
     except zenoh.ZError as exc:
@@ -148,6 +158,8 @@ def run(args: argparse.Namespace) -> int:
         for command in commands:
             procs[command.name] = subprocess.Popen(command.argv(sys.executable))
         print(f"up: router on {args.listen}, network {net}, services: {', '.join(procs)}", file=sys.stderr)
+        if "view" in procs:
+            print(f"up: map on {page_url(args.view_bind, args.view_port)}", file=sys.stderr, flush=True)
         before, t_before = Counter(), time.monotonic()
         while True:
             time.sleep(0.1)
@@ -156,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
                 # replay and the recorder end by themselves (status 0) at the end of the stream
                 if code is not None and (code != 0 or name not in ("replay", "recorder")):
                     failed = f"{name} exited with status {code}"
+                    if name == "view":
+                        failed += f" (is port {args.view_port} taken? choose another with --view-port, or --no-view)"
             if failed:
                 break
             counts, event_time, done = monitor.snapshot()

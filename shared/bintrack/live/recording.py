@@ -3,8 +3,9 @@
 Why MCAP: it is the recording convention of pub/sub systems (ROS 2, Foxglove): one channel
 per topic (here: per key expression), a schema per message type (here the pydantic JSON
 Schema of the message, ``encoding="jsonschema"``, payloads ``message_encoding="msgpack"``),
-and an index, so a recording is read in log-time order or by topic without a full scan and
-opens as is in Foxglove and the ``mcap`` CLI. The writer is chunked: a recording that was
+and an index, so a recording is read in log-time order or by topic without a full scan, with
+the ``mcap`` CLI among others. Foxglove lists its channels but does not decode msgpack:
+``bintrack export RECORDING --foxglove OUT.mcap`` writes a JSON copy it reads. The writer is chunked: a recording that was
 never finalised (a crash) still holds a readable prefix, all of it except the chunk that was
 being filled (at most ``CHUNK_SIZE`` bytes of messages).
 
@@ -57,6 +58,7 @@ from bintrack.messages import (
     SensorState,
     TrackSet,
     Transition,
+    TruthSample,
     VelocityEstimate,
     decode,
 )
@@ -79,6 +81,7 @@ KIND_TYPES: dict[str, type[Message]] = {
     "tracks": TrackSet,
     "laser_objects": LineObjectEstimate,
     "motion_velocity": VelocityEstimate,
+    "truth": TruthSample,
     "deployment": Deployment,
     "clock": Clock,
     "eos": EndOfStream,

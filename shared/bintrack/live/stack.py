@@ -27,12 +27,14 @@ class ServiceCommand:
 
 def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None = None, speed: float = 1.0,
                    loop: bool = False, record: str | None = None, estimates: str | None = None,
-                   tracker_args: tuple[str, ...] = ()) -> list[ServiceCommand]:
+                   tracker_args: tuple[str, ...] = (), view_port: int | None = None,
+                   view_bind: str = "127.0.0.1") -> list[ServiceCommand]:
     """The services in start order: the sensor agents, the peer agents if ``tracker`` runs on
-    them, the base station, the recorder if ``record``, and last the replay of ``source`` (if
+    them, the base station, the recorder if ``record``, the view if ``view_port``, and last the replay of ``source`` (if
     any), which waits for all the others. ``estimates``: the peer tracker whose estimates
     join mcmcda's reports (the peer agents run it); ``tracker_args``: further base-station
-    options of the tracker, for the service that runs it."""
+    options of the tracker, for the service that runs it; ``view_port``: the map (the view
+    service) on http://``view_bind``:``view_port``/, None for no map."""
     bus = ("-e", endpoint, "--net", net)
     services = [ServiceCommand("sensor_agent", bus)]
     if runs_on_peers(tracker):
@@ -45,6 +47,8 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
         services.append(ServiceCommand("basestation", ("--tracker", tracker, *extra, *bus)))
     if record is not None:
         services.append(ServiceCommand("recorder", ("--out", record, *bus)))
+    if view_port is not None:
+        services.append(ServiceCommand("view", ("--port", str(view_port), "--bind", view_bind, *bus)))
     if source is not None:
         replay = [source, "--speed", _number(speed), *(["--loop"] if loop else []),
                   "--wait-for", ",".join(s.name for s in services)]

@@ -1,0 +1,176 @@
+"""View: the live map of a network in the browser (DESIGN §9).
+
+    python -m bintrack.services.view [--port 8080] [--bind 127.0.0.1] [--tail S]
+        [-m MODE] [-e ENDPOINT]… [-l ENDPOINT]… [-c FILE] [--cfg KEY:VALUE]… [--net NAME]
+
+Serves the page on http://BIND:PORT/ at once, then takes the deployment from the
+``deployment`` queryable and the latest tracks from the ``tracks`` queryable (again whenever
+a page connects before any scan has arrived), and follows the whole network through the one
+bounded inbox every service has: transitions light sensors, and fused reports, estimates,
+tracks, laser objects, velocities and truth are pushed to every open page. It acknowledges
+each clock tick once it has taken it in (pages never hold it up: a slow page is dropped to the
+latest state), so replay's flow control counts it like any other service. A status line on
+the page says when the router or the stack is gone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import sys
+import time
+from collections import Counter
+
+import zenoh
+
+from bintrack.argtypes import positive_float
+from bintrack.live.bus import Service, add_bus_arguments, service_main
+from bintrack.errors import CommandError
+from bintrack.keys import parse_key
+from bintrack.messages import MessageError, TrackSet, decode
+from bintrack.live.recording import KIND_TYPES
+from bintrack.view.map_messages import DRAWN_KINDS, message_item
+from bintrack.view.map_server import DEFAULT_BIND, DEFAULT_PORT, MapHub, make_app, page_url, start_site
+from bintrack.view.map_state import DEFAULT_TAIL, MapState
+
+log = logging.getLogger("bintrack")
+
+STATUS_PERIOD = 1.0   # s of wall clock between status lines to the pages
+RATE_KINDS = ("raw", "transition", "estimate", "fusion_reports", "tracks")
+
+
+def port_number(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is 0..65535, got {value}")
+    return value
+
+
+def add_web_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--port", type=port_number, default=DEFAULT_PORT,
+                        help="HTTP port of the page (default: %(default)s; 0 picks a free one)")
+    parser.add_argument("--bind", default=DEFAULT_BIND, metavar="ADDRESS",
+                        help="address to serve on (default: %(default)s, this machine only)")
+    parser.add_argument("--tail", type=positive_float, default=DEFAULT_TAIL, metavar="S",
+                        help="event time drawn behind each track and truth target, s (default: %(default)s)")
+
+
+class View(Service):
+    name = "view"
+
+    async def setup(self) -> None:
+        self.hub = MapHub(MapState(tail=self.args.tail))
+        self.hub.on_page = self.complete_picture
+        self.counts: Counter = Counter()
+        try:
+            self.runner = await start_site(make_app(self.hub), self.args.bind, self.args.port)
+        except OSError as exc:
+            raise CommandError(str(exc)) from None
+        port = self.runner.addresses[0][1]
+        self.url = page_url(self.args.bind, port)
+        log.info("view: the map is on %s", self.url)
+        print(f"view: map on {self.url}", file=sys.stderr, flush=True)
+        self.subscribe(self.keys.all(), self.on_sample)
+        self.services: set[tuple[str, str]] = set()
+        self._declared.append(self.session.liveliness().declare_subscriber(
+            self.keys.alive(), self.inbox.callback(self.on_alive), history=True))
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        try:
+            kind = parse_key(key).kind
+        except ValueError:
+            return
+        self.counts[kind] += 1
+        if kind not in DRAWN_KINDS:
+            return
+        message = self.decode(KIND_TYPES[kind], sample)
+        if message is None:
+            return
+        item = message_item(message)
+        if item is not None and not self.hub.publish(item):
+            self.bad.report(key, f"{item['k']} of a sensor or node not in the deployment")
+        if kind == "clock":
+            self.report_progress(message.t)
+
+    def on_alive(self, sample: zenoh.Sample) -> None:
+        try:
+            parsed = parse_key(str(sample.key_expr))
+        except ValueError:
+            return
+        entry = (parsed.service, parsed.instance)
+        (self.services.add if sample.kind == zenoh.SampleKind.PUT else self.services.discard)(entry)
+
+    async def complete_picture(self) -> None:
+        """Before a page's first snapshot: the latest tracks from the queryable if none came yet."""
+        if self.hub.state.latest_tracks is None and self.hub.state.deployment is not None:
+            await self.fetch_latest_tracks()
+
+    async def fetch_latest_tracks(self) -> None:
+        best = None
+        for payload in await asyncio.to_thread(self.query, self.keys.tracks(), 1.0):
+            try:
+                candidate = decode(TrackSet, payload)
+            except MessageError as exc:
+                self.bad.report(self.keys.tracks(), exc.reason)
+                continue
+            if best is None or candidate.t > best.t:
+                best = candidate
+        if best is not None and self.hub.state.latest_tracks is None:
+            self.hub.publish(message_item(best))
+
+    async def main(self) -> None:
+        status = asyncio.create_task(self.report_status())
+        try:
+            deployment = await self.wait_for_deployment()
+            if deployment is not None:
+                self.hub.set_status(message="")
+                self.hub.broadcast(self.hub.state.set_deployment(deployment))
+                await self.fetch_latest_tracks()
+            await self.stopping.wait()
+        finally:
+            status.cancel()
+
+    def _routers(self) -> int:
+        return len(self.session.info.routers_zid())
+
+    async def report_status(self) -> None:
+        before, t_before = Counter(), time.monotonic()
+        while not self.stopping.is_set():
+            await asyncio.sleep(STATUS_PERIOD)
+            mode = self.args.mode or "client"
+            router = True if mode != "client" else await asyncio.to_thread(self._routers) > 0
+            now = time.monotonic()
+            rates = {kind: round((self.counts[kind] - before[kind]) / (now - t_before), 1) for kind in RATE_KINDS}
+            before, t_before = Counter(self.counts), now
+            others = sorted({service for service, _ in self.services if service != self.name})
+            if not router:
+                message = "bus gone: no Zenoh router reachable; retrying"
+            elif self.hub.state.deployment is None:
+                message = f"waiting for the deployment on {self.keys.deployment()}"
+            elif not others:
+                message = "stack gone: no bintrack service is alive on this network"
+            else:
+                message = ""
+            self.hub.set_status(router=router, services=others, rates=rates, message=message, net=self.args.net,
+                                dropped=self.inbox.dropped + sum(f.dropped for f in self.hub.feeds))
+
+    async def teardown(self) -> None:
+        await self.runner.cleanup()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m bintrack.services.view", description=__doc__.splitlines()[0])
+    add_web_arguments(parser)
+    parser.add_argument("--id", help="instance id (default: host-pid)")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    add_bus_arguments(parser)
+    return parser
+
+
+if __name__ == "__main__":
+    sys.exit(service_main(View, build_parser))
