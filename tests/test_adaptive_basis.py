@@ -165,7 +165,7 @@ def test_newton_never_increases_the_cost_and_lowers_jp():
     before, after = [], []
     for seed in range(6):
         scene = passage_scene(np.random.default_rng(seed), objects=40, noise=0.01)
-        basis = _basis(scene.times[:, :4], iterations=0)
+        basis = _basis(scene.times[:, :4], iterations=0, phase2="paper")
         before.append(_jp(basis, scene))
         for col in scene.times[:, 4:].T:
             basis.add_object(col)
