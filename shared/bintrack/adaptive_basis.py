@@ -476,43 +476,42 @@ class AdaptiveBasis:
         out = np.full((len(objs), OBJECT_UNKNOWNS, OBJECT_UNKNOWNS), np.nan)
         x = problem.pack(self.lines)
         dof = len(problem.k) - len(x)
-        if dof <= 0:
+        if dof <= 0 or len(problem.rows) == 0 or len(objs) == 0:
             return out
         r = problem.residuals(x)
         s2 = float(r @ r) / dof
-        jac = problem.jacobian(x).tocsc()
-        nb = LINE_UNKNOWNS * len(problem.rows)
-        jb = jac[:, :nb]
-        hbb = (jb.T @ jb).toarray()
-        blocks = {}
-        schur = hbb.copy()
-        for obj in range(self.objects):
-            cols = problem.obj_col[obj][problem.free[obj]]
-            if len(cols) == 0:
-                continue
-            jo = jac[:, cols]
-            hoo = (jo.T @ jo).toarray()
-            hbo = (jb.T @ jo).toarray()
-            try:
-                hoo_inv = np.linalg.inv(hoo)
-            except np.linalg.LinAlgError:
-                continue
-            blocks[obj] = (hoo_inv, hbo)
-            schur -= hbo @ hoo_inv @ hbo.T
+        vp = _Projected(problem)
+        mask, tau, free = vp.mask, vp.tau, problem.free
+        lines = np.where(np.isfinite(self.lines), self.lines, 0.0)
+        a, b = lines[:, :1], lines[:, 1:]
+        ones = np.ones_like(tau)
+        dfree = np.where(mask[..., None], np.stack([a * tau, a * ones, b * tau, b * ones], -1), 0.0) * free[None]
+        w = np.where(np.isfinite(problem.w), problem.w, 0.0)
+        jb = np.where(mask[..., None], np.stack([w[:, 1] + w[:, 0] * tau, w[:, 3] + w[:, 2] * tau], -1), 0.0)
+        jb = jb[problem.rows]  # known sensors only: L × n × 2
+        dfb = dfree[problem.rows]
+        hoo = np.einsum("kni,knj->nij", dfree, dfree)
+        hoo[:, np.arange(4), np.arange(4)] += ~free  # fixed components: identity, no coupling
+        try:
+            hoo_inv = np.linalg.inv(hoo)
+        except np.linalg.LinAlgError:
+            return out
+        cross = np.einsum("knj,knc->nkjc", jb, dfb).reshape(self.objects, -1, OBJECT_UNKNOWNS)  # H_bo per object
+        hbb = np.zeros((jb.shape[0], LINE_UNKNOWNS, jb.shape[0], LINE_UNKNOWNS))
+        idx = np.arange(jb.shape[0])
+        hbb[idx, :, idx, :] = np.einsum("kni,knj->kij", jb, jb)
+        schur = hbb.reshape(len(idx) * LINE_UNKNOWNS, -1) - np.einsum("npc,ncd,nqd->pq", cross, hoo_inv, cross)
         try:
             schur_inv = np.linalg.inv(schur)
         except np.linalg.LinAlgError:
             return out
+        known = self.object_known()
         for i, obj in enumerate(objs):
-            if obj not in blocks:
+            if not known[obj]:
                 continue
-            hoo_inv, hbo = blocks[obj]
-            g = hbo.T @ schur_inv @ hbo  # hob · S⁻¹ · hbo
-            cov = hoo_inv + hoo_inv @ g @ hoo_inv
-            full = np.zeros((OBJECT_UNKNOWNS, OBJECT_UNKNOWNS))
-            f = problem.free[obj]
-            full[np.ix_(f, f)] = s2 * cov
-            out[i] = full
+            left = hoo_inv[obj] @ cross[obj].T  # Hoo⁻¹·H_ob
+            cov = hoo_inv[obj] + left @ schur_inv @ left.T
+            out[i] = np.where(free[obj][:, None] & free[obj][None, :], s2 * cov, 0.0)
         return out
 
     def iterate(self, iterations: int = 1) -> list[float]:

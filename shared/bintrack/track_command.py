@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from .adaptive_basis import PHASE2_METHODS
 from .argtypes import int_at_least, positive_float
 from .errors import CommandError
 from .mcmcda import MCMCDAConfig
@@ -23,10 +24,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed", type=positive_float, help="target speed, units/s, for distance-weight and line-fit, and mcmcda's fastest target "
                         "(default: estimated from detection durations)")
     add_tracker_arguments(parser)
+    parser.add_argument("--beams", metavar="FILE.csv",
+                        help="adaptive-basis: also write the estimated beams a·x + b·y = 1 (sensor,a,b; units⁻¹)")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                         help="show progress on stderr (default: when stderr is a terminal)")
 
 def run(args: argparse.Namespace) -> int:
+    beams = getattr(args, "beams", None)
+    if beams is not None and args.tracker not in OBJECT_TRACKERS:
+        raise CommandError(f"--beams: tracker {args.tracker} does not estimate beams (adaptive-basis does)")
     dataset = open_dataset(args.dataset)
     try:
         tracker = make_tracker(args.tracker, dataset.deployment, tracker_options(args))
@@ -42,7 +48,41 @@ def run(args: argparse.Namespace) -> int:
     finally:
         progress.close()
     print(f"{count} {'objects' if objects else 'estimates'} by {args.tracker} written to {out}", file=sys.stderr)
+    if hasattr(tracker, "info"):
+        print_info(tracker.info())
+    if beams is not None:
+        rows = tracker.beams()
+        write_beams(beams, rows)
+        print(f"{len(rows)} beams written to {beams}", file=sys.stderr)
     return 0
+
+
+def print_info(info: dict) -> None:
+    """The adaptive basis tracker's frame and warnings, on stderr."""
+    if info.get("frame_source") is not None:
+        residual = info["frame_residual"]
+        fit = f"; residual {residual:.3g} {info['units']} RMS on {info['frame_points']}" if residual is not None else ""
+        print(f"phase 2: {info['phase2']}; real-world frame from {info['frame_source']}{fit}", file=sys.stderr)
+    for warning in info.get("warnings", ()):
+        print(f"warning: {warning}", file=sys.stderr)
+
+
+def write_beams(path: str, beams: dict[str, tuple[float, float]]) -> None:
+    """Write sensor,a,b rows (the beam a·x + b·y = 1, units⁻¹) to ``path`` ('-': stdout)."""
+    import csv
+
+    try:
+        handle = sys.stdout if path == "-" else open(path, "w", newline="")
+    except OSError as exc:
+        raise CommandError(f"cannot write --beams {path}: {exc.strerror or exc}") from None
+    try:
+        writer = csv.writer(handle)
+        writer.writerow(["sensor", "a", "b"])
+        for sensor, (a, b) in beams.items():
+            writer.writerow([sensor, repr(a), repr(b)])
+    finally:
+        if handle is not sys.stdout:
+            handle.close()
 
 
 def add_tracker_arguments(parser: argparse.ArgumentParser) -> None:
@@ -54,6 +94,9 @@ def add_tracker_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scans", type=int_at_least(2), help=f"mcmcda: sliding window, scans (default: {MCMCDAConfig.window})")
     parser.add_argument("--estimates", choices=PEER_TRACKERS, metavar="TRACKER",
                         help="mcmcda: also take this peer tracker's estimates as position reports")
+    parser.add_argument("--phase2", choices=PHASE2_METHODS,
+                        help="adaptive-basis: lsq = eq. 5 to its least-squares optimum after every pass (default), "
+                        "paper = 5 Newton iterations per pass (paper 003 §7.2)")
 
 
 def tracker_arguments(options: TrackerOptions) -> tuple[str, ...]:
@@ -61,7 +104,7 @@ def tracker_arguments(options: TrackerOptions) -> tuple[str, ...]:
     decides the services themselves)."""
     out: list[str] = []
     for flag, value in (("--speed", options.speed), ("--window", options.window), ("--n-mc", options.n_mc),
-                        ("--scans", options.scans)):
+                        ("--scans", options.scans), ("--phase2", options.phase2)):
         if value is not None:
             out += [flag, str(value)]
     if options.seed:
@@ -71,5 +114,6 @@ def tracker_arguments(options: TrackerOptions) -> tuple[str, ...]:
 
 def tracker_options(args: argparse.Namespace) -> TrackerOptions:
     """The ``TrackerOptions`` of parsed command-line options (absent ones keep their defaults)."""
-    fields = {name: getattr(args, name) for name in ("speed", "window", "seed", "n_mc", "scans", "estimates") if hasattr(args, name)}
+    fields = {name: getattr(args, name) for name in ("speed", "window", "seed", "n_mc", "scans", "estimates", "phase2")
+              if hasattr(args, name)}
     return TrackerOptions(**{k: v for k, v in fields.items() if v is not None})
