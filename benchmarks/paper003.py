@@ -63,7 +63,7 @@ def fig6_run(job: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
     scene = passage_scene(_rng(6, run), sensors=sensors, objects=objects + 4)
     curves = []
     for iterations in (5, 0):
-        basis = AdaptiveBasis(sensors, iterations=iterations)
+        basis = AdaptiveBasis(sensors, iterations=iterations, phase2="paper")
         jp = np.full(scene.times.shape[1], np.nan)
         for j, col in enumerate(scene.times.T):
             basis.add_object(col)
@@ -129,7 +129,7 @@ def fig7_run(job: tuple[int, int]) -> dict:
     rng = _rng(7, run)
     scene = passage_scene(rng, objects=4, noise=0.0)
     started = time.perf_counter()
-    basis = AdaptiveBasis(6, iterations=0)
+    basis = AdaptiveBasis(6, iterations=0, phase2="paper")
     for col in scene.times.T:
         basis.add_object(col)
     basis.initialise((0, 1, 2, 3))
