@@ -466,53 +466,78 @@ class AdaptiveBasis:
 
     def object_covariance(self, objects: Sequence[int] | None = None) -> np.ndarray:
         """Covariance of each object's (vx, cx, vy, cy) (its centre at its reference time) in the
-        adaptive frame, relative to o1 and o2 (the frame itself counts as exact): s²·(JᵀJ)⁻¹ of
-        eq. 5 at the current estimate, s² = J/(measurements − parameters). The object blocks of
-        the inverse come from the Schur complement on the beams (cost linear in the objects).
-        Shape (len(objects), 4, 4); NaN for objects not estimated or without redundancy; the
-        gauge's fixed components have zero variance."""
-        problem = self._layout()
-        objs = np.arange(self.objects) if objects is None else np.asarray(objects, dtype=int)
+        adaptive frame, relative to o1 and o2: the object blocks of :meth:`covariance`. Shape
+        (len(objects), 4, 4); NaN for objects not estimated or without redundancy; the gauge's
+        fixed components have zero variance."""
+        objs = list(range(self.objects)) if objects is None else [int(o) for o in objects]
         out = np.full((len(objs), OBJECT_UNKNOWNS, OBJECT_UNKNOWNS), np.nan)
+        known = self.object_known()
+        for i, obj in enumerate(objs):
+            if known[obj]:
+                cov = self.covariance([obj], beams=False)
+                if cov is not None:
+                    out[i] = cov
+        return out
+
+    def covariance(self, objects: Sequence[int], *, beams: bool = True) -> np.ndarray | None:
+        """Joint covariance s²·(JᵀJ)⁻¹ of eq. 5 at the current estimate (s² = J/(measurements −
+        parameters)) of the beams (a, b) of every sensor (2·sensors rows, if ``beams``; zero for
+        beams not estimated) and of ``objects``' (vx, cx, vy, cy) (4 rows each; zero for the
+        adaptive frame's fixed components), in that order. Blocks of the inverse come from the
+        Schur complement on the beams, so the cost is linear in the number of objects. None if
+        there is no redundancy or an object in ``objects`` is not estimated."""
+        problem = self._layout()
+        objs = [int(o) for o in objects]
         x = problem.pack(self.lines)
         dof = len(problem.k) - len(x)
-        if dof <= 0 or len(problem.rows) == 0 or len(objs) == 0:
-            return out
+        known = self.object_known()
+        if dof <= 0 or len(problem.rows) == 0 or not all(known[o] for o in objs):
+            return None
         r = problem.residuals(x)
         s2 = float(r @ r) / dof
-        vp = _Projected(problem)
-        mask, tau, free = vp.mask, vp.tau, problem.free
+        mask = np.zeros(self.times.shape, dtype=bool)
+        mask[problem.k, problem.l] = True
+        tau = np.where(mask, self.times - self.t_refs, 0.0)
+        free = problem.free
         lines = np.where(np.isfinite(self.lines), self.lines, 0.0)
         a, b = lines[:, :1], lines[:, 1:]
         ones = np.ones_like(tau)
         dfree = np.where(mask[..., None], np.stack([a * tau, a * ones, b * tau, b * ones], -1), 0.0) * free[None]
         w = np.where(np.isfinite(problem.w), problem.w, 0.0)
         jb = np.where(mask[..., None], np.stack([w[:, 1] + w[:, 0] * tau, w[:, 3] + w[:, 2] * tau], -1), 0.0)
-        jb = jb[problem.rows]  # known sensors only: L × n × 2
-        dfb = dfree[problem.rows]
+        jb, dfb = jb[problem.rows], dfree[problem.rows]  # known sensors only: L × n × …
         hoo = np.einsum("kni,knj->nij", dfree, dfree)
         hoo[:, np.arange(4), np.arange(4)] += ~free  # fixed components: identity, no coupling
+        cross = np.einsum("knj,knc->nkjc", jb, dfb).reshape(self.objects, -1, OBJECT_UNKNOWNS)  # H_bo per object
+        nl = len(problem.rows)
+        hbb = np.zeros((nl, LINE_UNKNOWNS, nl, LINE_UNKNOWNS))
+        hbb[np.arange(nl), :, np.arange(nl), :] = np.einsum("kni,knj->kij", jb, jb)
         try:
             hoo_inv = np.linalg.inv(hoo)
+            schur_inv = np.linalg.inv(hbb.reshape(nl * LINE_UNKNOWNS, -1)
+                                      - np.einsum("npc,ncd,nqd->pq", cross, hoo_inv, cross))
         except np.linalg.LinAlgError:
-            return out
-        cross = np.einsum("knj,knc->nkjc", jb, dfb).reshape(self.objects, -1, OBJECT_UNKNOWNS)  # H_bo per object
-        hbb = np.zeros((jb.shape[0], LINE_UNKNOWNS, jb.shape[0], LINE_UNKNOWNS))
-        idx = np.arange(jb.shape[0])
-        hbb[idx, :, idx, :] = np.einsum("kni,knj->kij", jb, jb)
-        schur = hbb.reshape(len(idx) * LINE_UNKNOWNS, -1) - np.einsum("npc,ncd,nqd->pq", cross, hoo_inv, cross)
-        try:
-            schur_inv = np.linalg.inv(schur)
-        except np.linalg.LinAlgError:
-            return out
-        known = self.object_known()
-        for i, obj in enumerate(objs):
-            if not known[obj]:
-                continue
-            left = hoo_inv[obj] @ cross[obj].T  # Hoo⁻¹·H_ob
-            cov = hoo_inv[obj] + left @ schur_inv @ left.T
-            out[i] = np.where(free[obj][:, None] & free[obj][None, :], s2 * cov, 0.0)
-        return out
+            return None
+        left = [hoo_inv[o] @ cross[o].T for o in objs]  # Hoo⁻¹·H_ob per object
+        blocks_b = [-schur_inv @ lo.T for lo in left]  # Cov(beams, object)
+        size = LINE_UNKNOWNS * self.sensors if beams else 0
+        out = np.zeros((size + OBJECT_UNKNOWNS * len(objs),) * 2)
+        cols = (LINE_UNKNOWNS * problem.rows[:, None] + np.arange(LINE_UNKNOWNS)).ravel()
+        if beams:
+            out[np.ix_(cols, cols)] = schur_inv
+        for i, oi in enumerate(objs):
+            si = slice(size + 4 * i, size + 4 * i + 4)
+            if beams:
+                out[cols, si] = blocks_b[i]
+                out[si, cols] = blocks_b[i].T
+            for j, oj in enumerate(objs):
+                block = left[i] @ schur_inv @ left[j].T + (hoo_inv[oi] if i == j else 0.0)
+                out[si, size + 4 * j:size + 4 * j + 4] = block
+        # the frame's fixed components: no variance, no covariance
+        fixed = np.concatenate([np.zeros(size, dtype=bool)] + [~free[o] for o in objs])
+        out[fixed, :] = 0.0
+        out[:, fixed] = 0.0
+        return s2 * out
 
     def iterate(self, iterations: int = 1) -> list[float]:
         """``iterations`` block-coordinate Newton iterations (eq. 26 and its object analogue): a

@@ -119,6 +119,7 @@ class AdaptiveBasisTracker:
         self.frame_residual: float | None = None  # RMS misfit of the frame's known points, units
         self.frame_points: str = ""  # what the residual was measured on
         self.warnings: list[str] = []
+        self._frame_inputs: tuple = ("", [], None)  # what fixed the frame: for the uncertainty
         self._warn_after = FRAME_WARNING_PASSES
         self.skipped: list[int] = []
         self.passes: list[tuple[float, float]] = []  # (t_first, t_last) per completed pass
@@ -170,8 +171,9 @@ class AdaptiveBasisTracker:
                     beams = {k: ab for k, ab in self.known_beams.items() if known[k]}
                     frame = frame_from_sensors(basis.lines, positions, beams)
                     self._sensor_residual(frame, positions, beams)
+                    self._frame_inputs = ("sensors", positions, beams)
                     return frame
-                pairs, used = [], []
+                pairs, used, matched = [], [], []
                 for cal in self.calibration:
                     obj = self._calibration_object(cal.t_entry, cal.t_exit)
                     if obj is None or not basis.object_known()[obj]:
@@ -179,7 +181,9 @@ class AdaptiveBasisTracker:
                     pairs.append((basis.position(obj, cal.t_entry), cal.entry))
                     pairs.append((basis.position(obj, cal.t_exit), cal.exit))
                     used.append(cal.pass_)
+                    matched.append((obj, cal))
                 frame = frame_from_points(pairs)
+                self._frame_inputs = ("calibration", matched, None)
                 misfit = [np.hypot(*(frame.points(q) - np.asarray(p))) for q, p in pairs]
                 self._residual(frame, misfit, "the entry and exit points of calibration passes "
                                + ", ".join(map(str, used)), "check those passes' entry/exit points and times")
@@ -274,10 +278,8 @@ class AdaptiveBasisTracker:
         self.frame, self.frame_source = frame, frame.source
         out = []
         known = self.basis.object_known()
-        new = list(range(self._emitted, self.basis.objects))
-        covs = self.basis.object_covariance(new)
-        for obj, cov in zip(new, covs):
-            estimate = self._estimate(obj, cov) if known[obj] else None
+        for obj in range(self._emitted, self.basis.objects):
+            estimate = self._estimate(obj) if known[obj] else None
             if estimate is None:
                 self.skipped.append(obj + 1)
             else:
@@ -285,7 +287,54 @@ class AdaptiveBasisTracker:
         self._emitted = self.basis.objects
         return out
 
-    def _estimate(self, obj: int, cov: np.ndarray | None = None) -> LineObjectEstimate | None:
+    def _point_sds(self, obj: int, times: tuple[float, float]) -> list[float | None]:
+        """Standard deviations (units, √ trace) of pass ``obj``'s real-world positions at
+        ``times`` (s): eq. 5's joint covariance of the beams, this pass and the calibration
+        passes, propagated through phase 3 (the frame is refitted from the perturbed estimates)
+        by central differences."""
+        basis = self.basis
+        source, inputs, beams_known = self._frame_inputs
+        others = [o for o, _ in inputs] if source == "calibration" else []
+        objs = [obj] + [o for o in dict.fromkeys(others) if o != obj]
+        cov = basis.covariance(objs)
+        if cov is None or not np.all(np.isfinite(cov)):
+            return [None, None]
+        m = basis.sensors
+        w = np.column_stack([basis.velocities[:, 0], basis.centres[:, 0], basis.velocities[:, 1], basis.centres[:, 1]])
+        x0 = np.concatenate([basis.lines.ravel(), w[objs].ravel()])
+        t_refs = basis.t_refs
+
+        def points(x: np.ndarray) -> np.ndarray:
+            ws = {o: x[2 * m + 4 * i:2 * m + 4 * i + 4] for i, o in enumerate(objs)}
+
+            def at(o, t):
+                return ws[o][[1, 3]] + ws[o][[0, 2]] * (t - t_refs[o])
+
+            if source == "sensors":
+                frame = frame_from_sensors(x[:2 * m].reshape(m, 2), inputs, beams_known)
+            else:
+                frame = frame_from_points([(at(o, c.t_entry), c.entry) for o, c in inputs]
+                                          + [(at(o, c.t_exit), c.exit) for o, c in inputs])
+            return np.concatenate([frame.points(at(obj, t)) for t in times])
+
+        sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        active = np.flatnonzero(sd > 0)
+        jac = np.zeros((4, len(x0)))
+        try:
+            for i in active:
+                step = np.zeros_like(x0)
+                step[i] = 1e-3 * sd[i]
+                jac[:, i] = (points(x0 + step) - points(x0 - step)) / (2 * step[i])
+        except DegenerateError:
+            return [None, None]
+        var = jac @ cov @ jac.T
+        out = []
+        for i in (0, 2):
+            value = math.sqrt(max(float(var[i, i] + var[i + 1, i + 1]), 0.0))
+            out.append(value if math.isfinite(value) else None)
+        return out
+
+    def _estimate(self, obj: int) -> LineObjectEstimate | None:
         basis, frame = self.basis, self.frame
         t_ref = float(basis.t_refs[obj])
         centre = frame.points(basis.centres[obj])
@@ -296,14 +345,7 @@ class AdaptiveBasisTracker:
         values = [*entry, *exit_, *velocity]
         if not all(math.isfinite(v) for v in values):
             return None
-        sds = [None, None]
-        if cov is not None and np.all(np.isfinite(cov)):
-            a_inv = np.linalg.inv(frame.A)
-            for i, t in enumerate(times):
-                dt = t - t_ref  # the adaptive point c + v·dt in (vx, cx, vy, cy)
-                jac = a_inv @ np.array([[dt, 1.0, 0.0, 0.0], [0.0, 0.0, dt, 1.0]])
-                sd = math.sqrt(max(float(np.trace(jac @ cov @ jac.T)), 0.0))
-                sds[i] = sd if math.isfinite(sd) else None
+        sds = self._point_sds(obj, times)
         return LineObjectEstimate(object=obj + 1, t_first=t_first, t_last=t_last,
                                   entry_x=float(entry[0]), entry_y=float(entry[1]),
                                   exit_x=float(exit_[0]), exit_y=float(exit_[1]),
