@@ -524,31 +524,31 @@ def msgpack_without(payload: bytes, fields) -> bytes:
     return msgpack.packb(data)
 
 
-def test_track_writes_the_beams_and_reports_the_frame(tmp_path):
+def test_track_writes_the_beams_and_reports_the_frame(tmp_path, capsys):
     import csv
-    import subprocess
-    import sys
+
+    from bintrack import cli
 
     def bintrack(*args):
-        return subprocess.run([sys.executable, "-m", "bintrack.cli", *args], capture_output=True, text=True,
-                              timeout=120, cwd=REPO)
+        code = cli.main(list(args))
+        return code, capsys.readouterr().err
 
     beams, objects = tmp_path / "beams.csv", tmp_path / "objects.csv"
-    done = bintrack("track", str(TESTBED), "--tracker", "adaptive-basis", "--out", str(objects), "--beams", str(beams))
-    assert done.returncode == 0, done.stderr
-    assert "real-world frame from calibration; residual" in done.stderr and "warning" not in done.stderr
+    code, err = bintrack("track", str(TESTBED), "--tracker", "adaptive-basis", "--out", str(objects), "--beams", str(beams))
+    assert code == 0, err
+    assert "real-world frame from calibration; residual" in err and "warning" not in err
     rows = list(csv.DictReader(beams.open()))
     assert [r["sensor"] for r in rows] == [f"L{k}" for k in range(1, 7)]
     true = {s.id: (s.a, s.b) for s in build_scenario("laser-testbed", 1).sensors}
     for r in rows:
         a, b = float(r["a"]), float(r["b"])
         assert np.hypot(a - true[r["sensor"]][0], b - true[r["sensor"]][1]) < 0.05 * np.hypot(*true[r["sensor"]])
-    paper = bintrack("track", str(TESTBED), "--tracker", "adaptive-basis", "--phase2", "paper", "--out",
-                     str(tmp_path / "paper.csv"))
-    assert paper.returncode == 0 and "phase 2: paper" in paper.stderr
+    code, err = bintrack("track", str(TESTBED), "--tracker", "adaptive-basis", "--phase2", "paper", "--out",
+                         str(tmp_path / "paper.csv"))
+    assert code == 0 and "phase 2: paper" in err
     assert (tmp_path / "paper.csv").read_text() != objects.read_text()
-    wrong = bintrack("track", str(TESTBED), "--tracker", "line-fit", "--out", str(tmp_path / "t.csv"), "--beams",
-                     str(tmp_path / "b.csv"))
-    assert wrong.returncode != 0 and "--beams" in wrong.stderr and not (tmp_path / "b.csv").exists()
-    wrong = bintrack("track", str(TESTBED), "--tracker", "arc", "--phase2", "paper")
-    assert wrong.returncode != 0 and "--phase2 applies to the adaptive-basis tracker only" in wrong.stderr
+    code, err = bintrack("track", str(TESTBED), "--tracker", "line-fit", "--out", str(tmp_path / "t.csv"), "--beams",
+                         str(tmp_path / "b.csv"))
+    assert code != 0 and "--beams" in err and not (tmp_path / "b.csv").exists()
+    code, err = bintrack("track", str(TESTBED), "--tracker", "arc", "--phase2", "paper")
+    assert code != 0 and "--phase2 applies to the adaptive-basis tracker only" in err
