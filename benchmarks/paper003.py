@@ -45,6 +45,9 @@ ZERO_COST = 1e-16  # eq. 5 at rounding level: a zero of the cost
 FIG6_TABLE = (4, 5, 6, 8, 10, 20, 30, 50, 75, 100, 104)
 FIG10_PASSES = (4, 13, 22, 31)
 TESTBED_SEED = 1  # datasets/README.md: bintrack simulate laser-testbed --seed 1
+FIRST_SCORED = 5  # passes 1–4 are phase 1's; the tables score passes 5..end
+PHASE2_ORDER = ("lsq", "paper")
+STARTS_AT = (5, 6, 8, 10, 14)  # passes after which the starts are compared
 
 
 def _rng(section: int, run: int) -> np.random.Generator:
@@ -61,7 +64,7 @@ def fig6_run(job: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
     scene = passage_scene(_rng(6, run), sensors=sensors, objects=objects + 4)
     curves = []
     for iterations in (5, 0):
-        basis = AdaptiveBasis(sensors, iterations=iterations)
+        basis = AdaptiveBasis(sensors, iterations=iterations, phase2="paper")
         jp = np.full(scene.times.shape[1], np.nan)
         for j, col in enumerate(scene.times.T):
             basis.add_object(col)
@@ -127,7 +130,7 @@ def fig7_run(job: tuple[int, int]) -> dict:
     rng = _rng(7, run)
     scene = passage_scene(rng, objects=4, noise=0.0)
     started = time.perf_counter()
-    basis = AdaptiveBasis(6, iterations=0)
+    basis = AdaptiveBasis(6, iterations=0, phase2="paper")
     for col in scene.times.T:
         basis.add_object(col)
     basis.initialise((0, 1, 2, 3))
@@ -159,6 +162,180 @@ def fig7_run(job: tuple[int, int]) -> dict:
         "local_true_restarts": int(true_restarts),
         "local_degenerate_restarts": int(degenerate),
     }
+
+
+# --------------------------------------------------------------------------- simulated testbeds
+
+
+def testbed_run(job: tuple[int, float, int, str]) -> dict:
+    """One simulated testbed (``bintrack simulate laser-testbed --seed S --jitter J --passes N``)
+    tracked with phase 2 ``phase2``: per-pass entry/exit errors (ft) and seconds per pass (the
+    wall time of the tracker's work when a pass completes: phase 2, phase 3 and the estimate)."""
+    import tempfile
+
+    from bintrack.formats import open_dataset, write_dataset
+    from bintrack.evaluation.metrics import entry_exit_errors, truth_paths
+    from bintrack.pipeline import output_objects, run_tracker
+    from bintrack.sim.scenarios import simulate
+    from bintrack.trackers.laser.tracker import AdaptiveBasisTracker
+
+    seed, jitter, passes, phase2 = job
+    sim = simulate("laser-testbed", seed, passes=passes, jitter=jitter)
+    with tempfile.TemporaryDirectory() as tmp:
+        dataset = open_dataset(write_dataset(Path(tmp), sim.deployment, sim.events, sim.truth))
+        tracker = AdaptiveBasisTracker(dataset.deployment, phase2=phase2)
+        seconds = []
+        close = tracker._close
+
+        def timed_close():
+            started = time.perf_counter()
+            out = close()
+            seconds.append(time.perf_counter() - started)
+            return out
+
+        tracker._close = timed_close
+        outputs = list(run_tracker(dataset, tracker))
+        errors = entry_exit_errors(output_objects(outputs), truth_paths(dataset.truth()))
+    sds = {o.object: (o.entry_sd, o.exit_sd) for o in outputs}
+    late = [e for e in errors if e.object >= FIRST_SCORED]
+    return {"seed": seed, "jitter": jitter, "phase2": phase2, "seconds": np.array(seconds),
+            "entry": np.array([e.entry for e in late]), "exit": np.array([e.exit for e in late]),
+            "sd": np.array([sds[e.object] for e in late], dtype=float),
+            "residual": tracker.frame_residual, "warnings": len(tracker.warnings),
+            "gradient": tracker.basis.last_solve.gradient if tracker.basis.last_solve else math.nan}
+
+
+def testbeds(pool, seeds: range, jitters: tuple[float, ...], passes: int) -> dict:
+    jobs = [(seed, jitter, passes, phase2) for jitter in jitters for phase2 in PHASE2_ORDER for seed in seeds]
+    started = time.monotonic()
+    results = {}
+    for done, r in enumerate(pool.map(testbed_run, jobs), 1):
+        results[(r["jitter"], r["phase2"], r["seed"])] = r
+        _progress("simulated testbeds", done, len(jobs), started)
+    print(file=sys.stderr)
+    return results
+
+
+def print_testbeds(results: dict, seeds: range, jitters: tuple[float, ...], passes: int) -> list[str]:
+    """The table (also returned as markdown lines for docs/paper003.md)."""
+    print(f"\nSimulated testbeds — bintrack simulate laser-testbed --seed S --jitter J --passes {passes}, "
+          f"S = {seeds.start}…{seeds.stop - 1}: entry/exit errors (ft) of passes {FIRST_SCORED}..{passes}; "
+          "per seed the mean and max over its passes, then over seeds: mean ± sd of the seed means, "
+          "the largest seed mean, the largest single pass")
+    md = ["| jitter | phase 2 | entry: mean ± sd over seeds | worst seed | worst pass | exit: mean ± sd over seeds "
+          "| worst seed | worst pass | seeds with a mean above 0.4 ft | s per pass: median / max |",
+          "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    head = (f"{'jitter':>7} {'phase 2':>8} {'entry mean±sd':>15} {'seed max':>9} {'pass max':>9} "
+            f"{'exit mean±sd':>15} {'seed max':>9} {'pass max':>9} {'>0.4':>5} {'s/pass med':>10} {'max':>7}")
+    print(head)
+    for jitter in jitters:
+        for phase2 in PHASE2_ORDER:
+            rs = [results[(jitter, phase2, s)] for s in seeds]
+            cells, mdcells = [], []
+            for key in ("entry", "exit"):
+                means = np.array([r[key].mean() for r in rs])
+                worst = max(r[key].max() for r in rs)
+                cells.append(f"{means.mean():>7.3f} ± {means.std(ddof=1):<5.3f} {means.max():>9.3f} {worst:>9.3f}")
+                mdcells += [f"{means.mean():.3f} ± {means.std(ddof=1):.3f}", f"{means.max():.3f}", f"{worst:.2f}"]
+            above = sum(max(r["entry"].mean(), r["exit"].mean()) > 0.4 for r in rs)
+            secs = np.concatenate([r["seconds"] for r in rs])
+            print(f"{jitter:>7.2f} {phase2:>8} {cells[0]} {cells[1]} {above:>5} {np.median(secs):>10.4f} "
+                  f"{secs.max():>7.3f}")
+            label = "ours (`lsq`)" if phase2 == "lsq" else "paper (5 Newton iterations)"
+            md.append(f"| ±{jitter:g} s | {label} | " + " | ".join(mdcells)
+                      + f" | {above}/{len(rs)} | {np.median(secs) * 1e3:.1f} ms / {secs.max() * 1e3:.0f} ms |")
+    for jitter in jitters:
+        rs = [results[(jitter, "lsq", s)] for s in seeds]
+        err = np.concatenate([np.column_stack([r["entry"], r["exit"]]) for r in rs])
+        sd = np.concatenate([r["sd"] for r in rs])
+        ok = np.all(np.isfinite(sd), axis=1)
+        ratio = err[ok] / sd[ok]
+        grads = np.array([r["gradient"] for r in rs])
+        warned = sum(r["warnings"] > 0 for r in rs)
+        residual = np.array([r["residual"] for r in rs])
+        rms = np.sqrt(np.mean(ratio ** 2, axis=0))
+        print(f"±{jitter:g} s, lsq: error / reported sd over {len(ratio)} passes: RMS entry {rms[0]:.2f}, exit {rms[1]:.2f} "
+              f"(1 if the sd were exact: E|e|² = trace), median {np.median(ratio[:, 0]):.2f} / {np.median(ratio[:, 1]):.2f} "
+              f"(0.67–0.83 for a 1-D to isotropic 2-D normal); "
+              f"final ‖Jᵀr‖ max {grads.max():.1e}; frame residual at the end {residual.mean():.3f} ft mean, "
+              f"{residual.max():.3f} max; runs warned about the frame: {warned}/{len(rs)}")
+    return md
+
+
+def starts_run(job: tuple[int, float]) -> list[tuple[int, int, int, int]]:
+    """Does the start matter once phase 2 converges? For one simulated testbed: after passes
+    n = 5, 6, 8, 10, 14, the tracker's estimate (phase 1 on passes 1–4, then a solve per pass)
+    against a solve from every other phase-1 start (passes 1, 2, j, k, same adaptive frame).
+    Per n: (n, starts tried, starts reaching the tracker's cost within 1e-6, starts reaching a
+    lower one)."""
+    import itertools
+
+    from bintrack.pipeline import TrackerDriver
+    from bintrack.sim.scenarios import simulate
+    from bintrack.trackers.laser.tracker import AdaptiveBasisTracker
+    from bintrack.transition_detector import TransitionDetector
+
+    seed, jitter = job
+    sim = simulate("laser-testbed", seed, passes=max(STARTS_AT), jitter=jitter)
+    tracker = AdaptiveBasisTracker(sim.deployment)
+    detector, driver = TransitionDetector(sim.deployment), TrackerDriver(tracker)
+    for event in sim.events:
+        transition = detector.update(event)
+        if transition is not None:
+            driver.advance(transition.t)
+            driver.push(transition)
+    driver.finish()
+    times = tracker.basis.times
+    out = []
+    for n in STARTS_AT:
+        live = AdaptiveBasis(times.shape[0])
+        for col in times[:, :n].T:
+            live.add_object(col)
+            live.try_initialise()
+        best = live.cost()
+        costs = []
+        for j, k in itertools.combinations(range(2, n), 2):
+            other = AdaptiveBasis(times.shape[0])
+            for col in times[:, :n].T:
+                other.add_object(col)
+            try:
+                other.initialise((0, 1, j, k))
+            except DegenerateError:
+                continue
+            costs.append(other.cost())
+        costs = np.array(costs)
+        out.append((n, len(costs), int(np.sum(np.abs(costs - best) <= 1e-6 * best)),
+                    int(np.sum(costs < best * (1 - 1e-6)))))
+    return out
+
+
+def print_starts(pool, seeds: range, jitter: float) -> None:
+    rows = [r for rs in pool.map(starts_run, [(s, jitter) for s in seeds]) for r in rs]
+    tried = sum(r[1] for r in rows)
+    same = sum(r[2] for r in rows)
+    lower = sum(r[3] for r in rows)
+    beaten = sum(r[3] > 0 for r in rows)
+    print(f"\nStarts (seeds {seeds.start}–{seeds.stop - 1}, ±{jitter:g} s, after passes {', '.join(map(str, STARTS_AT))}): "
+          f"of {tried} solves from other phase-1 starts (passes 1, 2, j, k), {same} ({same / tried:.1%}) reach the "
+          f"tracker's optimum, {lower} a lower cost; the tracker's optimum was beaten in {beaten}/{len(rows)} cases")
+
+
+def scaling_run(job: tuple[int, str, int]) -> np.ndarray:
+    seed, phase2, passes = job
+    return testbed_run((seed, 0.02, passes, phase2))["seconds"]
+
+
+def print_scaling(pool, passes: int) -> None:
+    """Seconds per pass as passes accumulate, on one long testbed (seed 1, ±0.02 s)."""
+    runs = dict(zip(PHASE2_ORDER, pool.map(scaling_run, [(1, phase2, passes) for phase2 in PHASE2_ORDER])))
+    edges = np.unique(np.linspace(4, passes, 6).astype(int))
+    print(f"\nTime per pass as passes accumulate (seed 1, ±0.02 s, {passes} passes): median ms per pass by range "
+          "of pass numbers")
+    print(f"{'passes':>12} " + " ".join(f"{p:>10}" for p in PHASE2_ORDER) + f" {'ratio':>7}")
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        # the tracker's first timed close is pass 1; passes 1–3 cost nothing (no phase 1 yet)
+        meds = [np.median(runs[p][lo:hi]) * 1e3 for p in PHASE2_ORDER]
+        print(f"{f'{lo + 1}–{hi}':>12} " + " ".join(f"{m:>10.1f}" for m in meds) + f" {meds[0] / meds[1]:>7.2f}")
 
 
 # --------------------------------------------------------------------------- Figs. 10–11
@@ -329,9 +506,18 @@ def _progress(label: str, done: int, total: int, started: float) -> None:
     print(f"\r{label}: {done}/{total} ({time.monotonic() - started:.0f} s)", end="", file=sys.stderr, flush=True)
 
 
-def run(runs: int, objects: int, restarts: int, sensors: int, jobs: int, out_dir: Path, dataset: Path) -> int:
+def run(runs: int, objects: int, restarts: int, sensors: int, jobs: int, out_dir: Path, dataset: Path,
+        seeds: range, jitters: tuple[float, ...], passes: int, scaling: int, testbeds_only: bool) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(max_workers=jobs) as pool:
+        results = testbeds(pool, seeds, jitters, passes)
+        md = print_testbeds(results, seeds, jitters, passes)
+        print("\nmarkdown:\n" + "\n".join(md))
+        print_starts(pool, seeds, max(jitters))
+        if scaling:
+            print_scaling(pool, scaling)
+        if testbeds_only:
+            return 0
         started = time.monotonic()
         fig6_with, fig6_without = [], []
         for done, (with_, without) in enumerate(pool.map(fig6_run, [(r, objects, sensors) for r in range(runs)]), 1):
@@ -420,12 +606,24 @@ def main() -> int:
     parser.add_argument("--out-dir", type=Path, default=Path("docs"), help="where the PNGs go (default: docs)")
     parser.add_argument("--dataset", type=Path, default=Path("datasets/laser-testbed"),
                         help="the testbed dataset (default: %(default)s)")
+    parser.add_argument("--seeds", type=int, default=20,
+                        help="simulated testbeds, seeds 1..N (default: %(default)s)")
+    parser.add_argument("--jitters", default="0.01,0.02",
+                        help="detection-time noise half-widths of the simulated testbeds, s (default: %(default)s)")
+    parser.add_argument("--passes", type=int, default=36, help="passes per simulated testbed (default: %(default)s)")
+    parser.add_argument("--scaling", type=int, default=200,
+                        help="passes of the long testbed timed as passes accumulate; 0 skips it (default: %(default)s)")
+    parser.add_argument("--testbeds-only", action="store_true", help="only the simulated testbeds and the scaling")
     args = parser.parse_args()
     if args.quick:
-        args.runs, args.objects, args.restarts = 10, 30, 20
-    if min(args.runs, args.objects, args.restarts) < 1 or not 1 <= args.jobs <= 2 or args.sensors < 6:
-        parser.error("--runs, --objects and --restarts must be ≥ 1, --jobs 1 or 2, --sensors ≥ 6")
-    return run(args.runs, args.objects, args.restarts, args.sensors, args.jobs, args.out_dir, args.dataset)
+        args.runs, args.objects, args.restarts, args.seeds, args.scaling = 10, 30, 20, 4, 60
+    jitters = tuple(float(j) for j in args.jitters.split(","))
+    if min(args.runs, args.objects, args.restarts, args.seeds) < 1 or not 1 <= args.jobs <= 2 or args.sensors < 6:
+        parser.error("--runs, --objects, --restarts and --seeds must be ≥ 1, --jobs 1 or 2, --sensors ≥ 6")
+    if args.passes < 8 or not (args.scaling == 0 or args.scaling >= 12):
+        parser.error("--passes must be ≥ 8, --scaling 0 or ≥ 12")
+    return run(args.runs, args.objects, args.restarts, args.sensors, args.jobs, args.out_dir, args.dataset,
+               range(1, args.seeds + 1), jitters, args.passes, args.scaling, args.testbeds_only)
 
 
 if __name__ == "__main__":

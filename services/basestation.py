@@ -23,7 +23,7 @@ from operator import attrgetter
 import zenoh
 
 from bintrack.argtypes import positive_float
-from bintrack.live.bus import add_bus_arguments, service_main
+from bintrack.live.bus import add_bus_arguments, log, service_main
 from bintrack.errors import CommandError
 from bintrack.messages import (Clock, LineObjectEstimate, LocalEstimate, Message, PositionReports, Track, TrackSet,
                                VelocityEstimate, encode)
@@ -110,8 +110,16 @@ class Basestation(TransitionConsumer):
                 self.publish(self.keys.fusion_reports(), out)
             elif isinstance(out, LineObjectEstimate):
                 self.publish(self.keys.laser_objects(), out)
+                self.log_tracker_warnings()
             elif isinstance(out, VelocityEstimate):
                 self.publish(self.keys.motion_velocity(), out)
+
+    def log_tracker_warnings(self) -> None:
+        """Log each warning the tracker has raised (adaptive-basis: a frame misfit) once."""
+        warnings = getattr(self.driver.tracker, "warnings", ())
+        for warning in warnings[getattr(self, "_warned", 0):]:
+            log.warning("%s", warning)
+        self._warned = len(warnings)
 
     def on_tracks_query(self, query: zenoh.Query) -> None:
         if self.latest is not None:

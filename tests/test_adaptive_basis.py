@@ -165,7 +165,7 @@ def test_newton_never_increases_the_cost_and_lowers_jp():
     before, after = [], []
     for seed in range(6):
         scene = passage_scene(np.random.default_rng(seed), objects=40, noise=0.01)
-        basis = _basis(scene.times[:, :4], iterations=0)
+        basis = _basis(scene.times[:, :4], iterations=0, phase2="paper")
         before.append(_jp(basis, scene))
         for col in scene.times[:, 4:].T:
             basis.add_object(col)
@@ -386,3 +386,169 @@ def test_non_line_and_repeated_transitions_are_ignored(testbed):
     assert tracker.update(first.model_copy(update={"sensor": "unknown"})) == []
     assert tracker.update(first.model_copy(update={"value": 0})) == []
     assert len(tracker._current) == 1
+
+
+# --------------------------------------------------------------------------- phase 2 to the optimum (issue 19)
+
+
+def _simulated(tmp_path, seed: int, **options):
+    from bintrack.formats import write_dataset
+    from bintrack.sim.scenarios import simulate
+
+    sim = simulate("laser-testbed", seed, **options)
+    return open_dataset(write_dataset(tmp_path / f"laser-{seed}", sim.deployment, sim.events, sim.truth))
+
+
+def test_least_squares_phase2_recovers_the_truth_on_noiseless_data():
+    for seed in range(3):
+        scene = passage_scene(np.random.default_rng(seed), objects=12, noise=0.0)
+        basis = _basis(scene.times)
+        assert basis.phase2 == "lsq" and basis.last_solve is not None
+        lines, objects = _real(basis, frame_from_points(scene.calibration_pairs(basis)))
+        assert np.abs(lines - scene.lines).max() < 1e-9
+        assert np.abs(objects - scene.objects).max() < 1e-9
+
+
+def test_tracker_recovers_beams_and_points_to_1e6_ft_without_timing_noise(tmp_path):
+    dataset = _simulated(tmp_path, 2, passes=12, jitter=0.0)
+    tracker = AdaptiveBasisTracker(dataset.deployment)
+    out = list(run_tracker(dataset, tracker))
+    # pass 1 runs along the border y = 0 and pass 2 into the corner: their border crossings are ill-posed
+    entry, exit_ = _errors(out, truth_paths(dataset.truth()), first=3)
+    assert len(entry) == 10 and entry.max() < 1e-6 and exit_.max() < 1e-6
+    true = {s.id: (s.a, s.b) for s in build_scenario("laser-testbed", 2).sensors}
+    for sid, ab in tracker.beams().items():
+        # a beam's error as a distance: where it crosses y = 0 and y = 8 (ft)
+        for y in (0.0, 8.0):
+            assert abs((1 - ab[1] * y) / ab[0] - (1 - true[sid][1] * y) / true[sid][0]) < 1e-6
+    assert tracker.frame_residual < 1e-6 and tracker.warnings == []
+
+
+def test_least_squares_phase2_converges_on_noisy_data():
+    scene = passage_scene(np.random.default_rng(4), objects=30, noise=0.01)
+    basis = AdaptiveBasis(6)
+    for col in scene.times.T:
+        basis.add_object(col)
+        if basis.try_initialise() and basis.objects > 4:
+            report = basis.last_solve
+            # the gradient of eq. 5 vanishes at the returned solution (relative to its scale)
+            problem = basis._layout()
+            x = problem.pack(basis.lines)
+            jac, r = problem.jacobian(x), problem.residuals(x)
+            scale = float(np.sqrt(np.sum(jac.multiply(jac))) * np.linalg.norm(r))
+            assert report.gradient == pytest.approx(basis.gradient_norm())
+            assert report.gradient < 1e-6 * scale
+            assert report.cost <= report.cost_before
+    # and it is the optimum the joint solve (beams and objects together) reaches from there
+    cost = basis.cost()
+    joint = basis.solve(joint=True)
+    assert joint.cost == pytest.approx(cost, rel=1e-9)
+    # the paper's five Newton iterations per pass stop well short of it
+    paper = _basis(scene.times, phase2="paper")
+    assert paper.cost() > 1.01 * cost and paper.gradient_norm() > 100 * basis.gradient_norm()
+
+
+def test_object_covariance_is_the_inverse_normal_matrix_block():
+    scene = passage_scene(np.random.default_rng(3), objects=20, noise=0.01)
+    basis = _basis(scene.times)
+    objs = [1, 5, 19]
+    cov = basis.object_covariance(objs)
+    problem = basis._layout()
+    x = problem.pack(basis.lines)
+    jac, r = problem.jacobian(x).toarray(), problem.residuals(x)
+    full = float(r @ r) / (len(r) - len(x)) * np.linalg.inv(jac.T @ jac)
+    for c, obj in zip(cov, objs):
+        free = problem.free[obj]
+        cols = problem.obj_col[obj][free]
+        assert np.allclose(c[np.ix_(free, free)], full[np.ix_(cols, cols)], rtol=1e-6, atol=0)
+        assert np.all(c[~free] == 0)  # o2's velocity is fixed by the adaptive frame
+
+
+def test_phase2_option_errors():
+    with pytest.raises(ValueError, match="phase2"):
+        AdaptiveBasis(6, phase2="newton")
+    with pytest.raises(CommandError, match="phase 2"):
+        AdaptiveBasisTracker(open_dataset(TESTBED).deployment, phase2="newton")
+
+
+def test_a_wrong_calibration_point_gives_one_warning_naming_the_passes(tmp_path):
+    dataset = _simulated(tmp_path, 3, passes=20)
+    tracker = AdaptiveBasisTracker(dataset.deployment)
+    list(run_tracker(dataset, tracker))
+    assert tracker.warnings == [] and tracker.frame_residual < 0.1
+    assert tracker.info()["frame_residual"] == tracker.frame_residual
+    # pass 2's entry written 1.5 ft off: (0, 1.5) instead of (0, 0). (Its exit could not be checked:
+    # the two passes share their entry point, and three distinct points fit an affine map exactly.)
+    cal = dataset.deployment.calibration
+    wrong = cal.passes[1].model_copy(update={"entry": (0.0, 1.5)})
+    deployment = dataset.deployment.model_copy(update={"calibration": cal.model_copy(update={"passes": [cal.passes[0], wrong]})})
+    tracker = AdaptiveBasisTracker(deployment)
+    list(run_tracker(dataset, tracker))
+    assert tracker.frame_residual > 0.25
+    assert len(tracker.warnings) == 1
+    assert "calibration passes 1, 2" in tracker.warnings[0] and "ft" in tracker.warnings[0]
+    assert tracker.info()["warnings"] == tracker.warnings
+
+
+def test_known_positions_beat_the_calibration_passes(testbed):
+    dataset, events, truth = testbed
+    sensors = []
+    for k, s in enumerate(build_scenario("laser-testbed", 1).sensors):
+        y = 8.0 if k % 2 else 0.0  # odd sensors: the laser's end of the beam
+        sensors.append(LineSensor(id=s.id, x=(1 - y * s.b) / s.a, y=y))
+    tracker, out = _run(_deployment(sensors, dataset.deployment.calibration), events)
+    assert tracker.frame_source == "sensors" and "(fallback)" in tracker.frame_reason
+    assert tracker.frame_residual < 0.25 and "known positions/beams of sensors" in tracker.info()["frame_points"]
+    entry, exit_ = _errors(out, truth)
+    assert entry.mean() < 0.4 and exit_.mean() < 0.4
+
+
+def test_estimates_carry_entry_and_exit_standard_deviations(testbed):
+    dataset, events, truth = testbed
+    _, out = _run(dataset.deployment, events)
+    sds = np.array([(o.entry_sd, o.exit_sd) for o in out if o.object >= 5], dtype=float)
+    assert np.all(np.isfinite(sds)) and np.all(sds > 0) and np.all(sds < 2.0)
+    # an old recording's message, without them, still decodes
+    from bintrack.messages import decode, encode
+    old = LineObjectEstimate(object=1, t_first=0, t_last=1, entry_x=0, entry_y=3, exit_x=16, exit_y=4, vx=1, vy=.1)
+    payload = msgpack_without(encode(old), ("entry_sd", "exit_sd"))
+    assert decode(LineObjectEstimate, payload) == old and old.entry_sd is None
+
+
+def msgpack_without(payload: bytes, fields) -> bytes:
+    import msgpack
+
+    data = msgpack.unpackb(payload)
+    for f in fields:
+        data.pop(f)
+    return msgpack.packb(data)
+
+
+def test_track_writes_the_beams_and_reports_the_frame(tmp_path, capsys):
+    import csv
+
+    from bintrack.cli import main as cli
+
+    def bintrack(*args):
+        code = cli.main(list(args))
+        return code, capsys.readouterr().err
+
+    beams, objects = tmp_path / "beams.csv", tmp_path / "objects.csv"
+    code, err = bintrack("track", str(TESTBED), "--tracker", "adaptive-basis", "--out", str(objects), "--beams", str(beams))
+    assert code == 0, err
+    assert "real-world frame from calibration; residual" in err and "warning" not in err
+    rows = list(csv.DictReader(beams.open()))
+    assert [r["sensor"] for r in rows] == [f"L{k}" for k in range(1, 7)]
+    true = {s.id: (s.a, s.b) for s in build_scenario("laser-testbed", 1).sensors}
+    for r in rows:
+        a, b = float(r["a"]), float(r["b"])
+        assert np.hypot(a - true[r["sensor"]][0], b - true[r["sensor"]][1]) < 0.05 * np.hypot(*true[r["sensor"]])
+    code, err = bintrack("track", str(TESTBED), "--tracker", "adaptive-basis", "--phase2", "paper", "--out",
+                         str(tmp_path / "paper.csv"))
+    assert code == 0 and "phase 2: paper" in err
+    assert (tmp_path / "paper.csv").read_text() != objects.read_text()
+    code, err = bintrack("track", str(TESTBED), "--tracker", "line-fit", "--out", str(tmp_path / "t.csv"), "--beams",
+                         str(tmp_path / "b.csv"))
+    assert code != 0 and "--beams" in err and not (tmp_path / "b.csv").exists()
+    code, err = bintrack("track", str(TESTBED), "--tracker", "arc", "--phase2", "paper")
+    assert code != 0 and "--phase2 applies to the adaptive-basis tracker only" in err

@@ -311,6 +311,10 @@ class LineObjectEstimate(Message):
     exit_y: float
     vx: float = Field(description="velocity, units/s")
     vy: float = Field(description="velocity, units/s")
+    entry_sd: float | None = Field(default=None, ge=0, description="standard deviation of the entry point, units "
+                                   "(√ trace of its covariance; None if unknown)")
+    exit_sd: float | None = Field(default=None, ge=0, description="standard deviation of the exit point, units "
+                                  "(√ trace of its covariance; None if unknown)")
 
 
 class VelocityEstimate(Message):

@@ -27,6 +27,7 @@ OPTIONS = (
     ("duration", float, "S", "how long the target moves (or the field is observed), s"),
     ("people", int, "N", "people walking through the field (darpa-grid)"),
     ("passes", int, "N", "car passes (laser-testbed)"),
+    ("jitter", float, "S", "detection-time noise U[-S, S], s (laser-testbed; default 0.01)"),
     ("period", float, "S", "sampling period, s (default: event-driven for uniform-800 and sector-300)"),
     ("pd", float, "P", "detection probability per sample (needs --period)"),
     ("pfa", float, "P", "false-alarm probability per sample (needs --period)"),

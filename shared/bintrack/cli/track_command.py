@@ -23,10 +23,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed", type=positive_float, help="target speed, units/s, for distance-weight and line-fit, and mcmcda's fastest target "
                         "(default: estimated from detection durations)")
     add_tracker_arguments(parser)
+    parser.add_argument("--beams", metavar="FILE.csv",
+                        help="adaptive-basis: also write the estimated beams a·x + b·y = 1 (sensor,a,b; units⁻¹)")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                         help="show progress on stderr (default: when stderr is a terminal)")
 
 def run(args: argparse.Namespace) -> int:
+    beams = getattr(args, "beams", None)
+    if beams is not None and args.tracker not in OBJECT_TRACKERS:
+        raise CommandError(f"--beams: tracker {args.tracker} does not estimate beams (adaptive-basis does)")
     dataset = open_dataset(args.dataset)
     try:
         tracker = make_tracker(args.tracker, dataset.deployment, tracker_options(args))
@@ -42,4 +47,38 @@ def run(args: argparse.Namespace) -> int:
     finally:
         progress.close()
     print(f"{count} {'objects' if objects else 'estimates'} by {args.tracker} written to {out}", file=sys.stderr)
+    if hasattr(tracker, "info"):
+        print_info(tracker.info())
+    if beams is not None:
+        rows = tracker.beams()
+        write_beams(beams, rows)
+        print(f"{len(rows)} beams written to {beams}", file=sys.stderr)
     return 0
+
+
+def print_info(info: dict) -> None:
+    """The adaptive basis tracker's frame and warnings, on stderr."""
+    if info.get("frame_source") is not None:
+        residual = info["frame_residual"]
+        fit = f"; residual {residual:.3g} {info['units']} RMS on {info['frame_points']}" if residual is not None else ""
+        print(f"phase 2: {info['phase2']}; real-world frame from {info['frame_source']}{fit}", file=sys.stderr)
+    for warning in info.get("warnings", ()):
+        print(f"warning: {warning}", file=sys.stderr)
+
+
+def write_beams(path: str, beams: dict[str, tuple[float, float]]) -> None:
+    """Write sensor,a,b rows (the beam a·x + b·y = 1, units⁻¹) to ``path`` ('-': stdout)."""
+    import csv
+
+    try:
+        handle = sys.stdout if path == "-" else open(path, "w", newline="")
+    except OSError as exc:
+        raise CommandError(f"cannot write --beams {path}: {exc.strerror or exc}") from None
+    try:
+        writer = csv.writer(handle)
+        writer.writerow(["sensor", "a", "b"])
+        for sensor, (a, b) in beams.items():
+            writer.writerow([sensor, repr(a), repr(b)])
+    finally:
+        if handle is not sys.stdout:
+            handle.close()

@@ -219,15 +219,17 @@ CAR_SPEED = 1.41
 DETECTION_NOISE = 0.01
 
 
-def laser_testbed(seed: int = 0, *, passes: int = 32, speed: float = CAR_SPEED) -> Scenario:
+def laser_testbed(seed: int = 0, *, passes: int = 32, speed: float = CAR_SPEED,
+                  jitter: float = DETECTION_NOISE) -> Scenario:
     """Paper 003 §7.1: a 16 × 8 ft track crossed by 6 laser beams (light sensors along y = 0,
     lasers along y = 8, beams at 55–70° to the track, none parallel); a car at ``speed`` ft/s
     (±5 % per pass) makes ``passes`` straight passes from the left edge x = 0 to the right edge
     x = 16, 2–6 s apart. Pass 1 goes (0, 0) → (16, 0) and pass 2 (0, 0) → (16, 8); both are
-    the deployment's calibration passes. Detection times carry U[−0.01, 0.01] s noise. The
-    published sensors give the light-sensor position only, not the beam."""
+    the deployment's calibration passes. Detection times carry U[−``jitter``, ``jitter``] s
+    noise (default 0.01 s). The published sensors give the light-sensor position only, not the beam."""
     _check(passes >= 2, f"--passes must be at least 2 (passes 1 and 2 calibrate), got {passes}")
     _positive("speed", speed)
+    _check(math.isfinite(jitter) and jitter >= 0, f"--jitter must be a non-negative number of seconds, got {jitter}")
     layout, paths = _streams(seed, 2)
     sensors = deployments.laser_track(layout, TRACK.width, TRACK.height)
     published = [LineSensor(id=s.id, x=s.x, y=s.y) for s in sensors]
@@ -253,7 +255,7 @@ def laser_testbed(seed: int = 0, *, passes: int = 32, speed: float = CAR_SPEED) 
     deployment = Deployment(name="laser-testbed", units="ft", region=TRACK, sensors=published,
                             calibration=calibration)
     return Scenario("laser-testbed", deployment, tuple(sensors), tuple(runs), (0.0, runs[-1].t_exit),
-                    time_noise=DETECTION_NOISE)
+                    time_noise=jitter)
 
 
 # --------------------------------------------------------------------------- paper 002

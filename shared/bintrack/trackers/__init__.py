@@ -39,6 +39,8 @@ class TrackerOptions:
     """mcmcda: sliding-window length in scans (None = the default)"""
     estimates: str | None = None
     """mcmcda: a peer tracker whose estimates join the fused position reports"""
+    phase2: str | None = None
+    """adaptive-basis: "lsq" (least-squares optimum after every pass, default) or "paper" (5 Newton iterations)"""
 
 
 LINE_FIT_WINDOW = 10
@@ -70,7 +72,7 @@ _PEER: dict[str, Callable[[Deployment, TrackerOptions], Tracker]] = {
 }
 _BASE: dict[str, Callable[[Deployment, TrackerOptions], Tracker]] = {
     "mcmcda": _mcmcda,
-    "adaptive-basis": lambda d, o: AdaptiveBasisTracker(d),
+    "adaptive-basis": lambda d, o: AdaptiveBasisTracker(d, **({"phase2": o.phase2} if o.phase2 else {})),
     "velocity-plane": lambda d, o: VelocityPlaneTracker(d, **_window(o)),
     "svm": lambda d, o: SvmTracker(d, **_window(o)),
     "ppr": lambda d, o: PprTracker(d, **_window(o)),
@@ -96,6 +98,8 @@ def check_options(name: str, options: TrackerOptions) -> None:
         raise ValueError(f"unknown tracker {name!r} (available: {', '.join(TRACKER_NAMES)})")
     if name == "line-fit" and options.window is not None and options.window < 2:
         raise ValueError(f"line-fit fits a line to at least 2 estimates: --window {options.window} is too small")
+    if options.phase2 is not None and name != "adaptive-basis":
+        raise ValueError(f"--phase2 applies to the adaptive-basis tracker only, not {name}")
     if options.estimates is not None:
         if name != "mcmcda":
             raise ValueError(f"peer estimates feed only the mcmcda tracker, not {name}")

@@ -7,6 +7,7 @@ import argparse
 
 from bintrack.argtypes import int_at_least
 from bintrack.trackers import PEER_TRACKERS, TrackerOptions
+from bintrack.trackers.laser.adaptive_basis import PHASE2_METHODS
 from bintrack.trackers.multi.mcmcda import MCMCDAConfig
 
 
@@ -19,6 +20,9 @@ def add_tracker_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scans", type=int_at_least(2), help=f"mcmcda: sliding window, scans (default: {MCMCDAConfig.window})")
     parser.add_argument("--estimates", choices=PEER_TRACKERS, metavar="TRACKER",
                         help="mcmcda: also take this peer tracker's estimates as position reports")
+    parser.add_argument("--phase2", choices=PHASE2_METHODS,
+                        help="adaptive-basis: lsq = eq. 5 to its least-squares optimum after every pass (default), "
+                        "paper = 5 Newton iterations per pass (paper 003 §7.2)")
 
 
 def tracker_arguments(options: TrackerOptions) -> tuple[str, ...]:
@@ -26,7 +30,7 @@ def tracker_arguments(options: TrackerOptions) -> tuple[str, ...]:
     decides the services themselves)."""
     out: list[str] = []
     for flag, value in (("--speed", options.speed), ("--window", options.window), ("--n-mc", options.n_mc),
-                        ("--scans", options.scans)):
+                        ("--scans", options.scans), ("--phase2", options.phase2)):
         if value is not None:
             out += [flag, str(value)]
     if options.seed:
@@ -36,5 +40,6 @@ def tracker_arguments(options: TrackerOptions) -> tuple[str, ...]:
 
 def tracker_options(args: argparse.Namespace) -> TrackerOptions:
     """The ``TrackerOptions`` of parsed command-line options (absent ones keep their defaults)."""
-    fields = {name: getattr(args, name) for name in ("speed", "window", "seed", "n_mc", "scans", "estimates") if hasattr(args, name)}
+    fields = {name: getattr(args, name) for name in ("speed", "window", "seed", "n_mc", "scans", "estimates", "phase2")
+              if hasattr(args, name)}
     return TrackerOptions(**{k: v for k, v in fields.items() if v is not None})

@@ -51,6 +51,11 @@ RANK_RTOL = 1e-7  # relative singular value below which a (column-normalised) sy
 # phase 1's fourth-object check: RMS time residual at most this fraction of its detection span
 CONSISTENCY_RTOL = 0.05
 COND_MAX = 1e12  # a block whose (scaled) Newton matrix is worse conditioned is not updated
+PHASE2_METHODS = ("lsq", "paper")
+SOLVE_XTOL = 1e-10  # relative step at which the least-squares phase 2 stops
+SOLVE_FTOL = 1e-15
+SOLVE_GTOL = 1e-15
+SOLVE_MAX_NFEV: int | None = None
 
 
 class DegenerateError(ValueError):
@@ -253,13 +258,17 @@ class AdaptiveBasis:
     knows only some measurements runs its own instance fed with those.
     """
 
-    def __init__(self, sensors: int, *, iterations: int = DEFAULT_ITERATIONS):
+    def __init__(self, sensors: int, *, iterations: int = DEFAULT_ITERATIONS, phase2: str = "lsq"):
         if sensors < 1:
             raise ValueError("the adaptive basis needs at least one sensor")
         if iterations < 0:
             raise ValueError(f"iterations must be ≥ 0, got {iterations}")
+        if phase2 not in PHASE2_METHODS:
+            raise ValueError(f"phase2 must be one of {', '.join(PHASE2_METHODS)}, got {phase2!r}")
         self.sensors = sensors
         self.iterations = iterations
+        self.phase2 = phase2
+        self.last_solve: SolveReport | None = None
         self._cols: list[np.ndarray] = []
         self.times = np.empty((sensors, 0))
         self.t_refs = np.empty(0)
@@ -307,7 +316,7 @@ class AdaptiveBasis:
         index = self.objects - 1
         if self.initialised:
             self._object_step(np.array([index]))
-            self.iterate(self.iterations)
+            self.refine()
         return index
 
     # ---------------------------------------------------------------- phase 1
@@ -354,10 +363,181 @@ class AdaptiveBasis:
         self.phase1_objects = tuple(int(q) for q in quad)
         self.gauge = (int(quad[0]), int(quad[1]))
         self._object_step(np.arange(self.objects))
-        self.iterate(self.iterations)
+        self.refine()
         return sol
 
     # ---------------------------------------------------------------- phase 2
+
+    def refine(self) -> None:
+        """Phase 2 after a new object (or phase 1): ``phase2 = "paper"`` runs :attr:`iterations`
+        block-coordinate Newton iterations (§7.2); ``"lsq"`` (default) solves eq. 5 over every
+        known measurement to its least-squares optimum (:meth:`solve`)."""
+        if self.phase2 == "paper":
+            self.iterate(self.iterations)
+        else:
+            self.solve()
+
+    def _start_unknown(self) -> None:
+        """Estimate the sensors and objects that have just got enough data to be fixed (one
+        block Newton step on each, from zero: their exact least-squares block fit)."""
+        unknown = ~self.line_known()
+        if unknown.any():
+            self._line_step(unknown)
+        unknown = np.flatnonzero(~self.object_known())
+        if len(unknown):
+            self._object_step(unknown)
+
+    def _layout(self) -> "_Problem":
+        """The free parameters and known measurements of eq. 5 at the current estimate."""
+        m, n = self.sensors, self.objects
+        lk, ok = self.line_known(), self.object_known()
+        mask = self.omega & lk[:, None] & ok[None, :]
+        free = np.zeros((n, OBJECT_UNKNOWNS), dtype=bool)
+        free[ok] = True
+        if self.gauge is not None:  # the adaptive frame: o1 fixed, o2's velocity fixed
+            free[self.gauge[0]] = False
+            free[self.gauge[1], [0, 2]] = False
+        rows = np.flatnonzero(lk)
+        line_col = np.full((m, LINE_UNKNOWNS), -1)
+        line_col[rows] = np.arange(LINE_UNKNOWNS * len(rows)).reshape(-1, LINE_UNKNOWNS)
+        obj_col = np.full((n, OBJECT_UNKNOWNS), -1)
+        obj_col[free] = LINE_UNKNOWNS * len(rows) + np.arange(int(free.sum()))
+        k, l = np.nonzero(mask)
+        w = np.column_stack([self.velocities[:, 0], self.centres[:, 0], self.velocities[:, 1], self.centres[:, 1]])
+        return _Problem(rows, free, line_col, obj_col, k, l, self.times[k, l] - self.t_refs[l], w)
+
+    def _store(self, problem: "_Problem", x: np.ndarray) -> None:
+        lines, w = problem.unpack(x, self.lines)
+        self.lines = lines
+        self.velocities[:, 0], self.centres[:, 0] = w[:, 0], w[:, 1]
+        self.velocities[:, 1], self.centres[:, 1] = w[:, 2], w[:, 3]
+
+    def solve(self, *, xtol: float = SOLVE_XTOL, max_nfev: int | None = SOLVE_MAX_NFEV,
+              joint: bool = False) -> "SolveReport":
+        """Eq. 5 to its least-squares optimum over every known measurement (Ω, eq. 21) of the
+        estimated sensors and objects, in the adaptive frame (o1 fixed, o2's velocity fixed), by
+        ``scipy.optimize.least_squares`` (Levenberg–Marquardt, analytic Jacobian), warm-started
+        from the current estimate until the relative step is below ``xtol``.
+
+        Default: variable projection — the unknowns are the beams only; for given beams each
+        object's (vx, cx, vy, cy) is its exact linear least-squares fit (eq. 5 is linear in them),
+        and the Jacobian is Kaufman's (the beams' columns of eq. 24 projected off each object's
+        columns), whose gradient Jᵀr is exact at the objects' optimum, so the stationary point is
+        that of eq. 5. An evaluation costs O(measurements) and the unknowns stay 2·sensors, so a
+        solve's cost grows linearly with the passes. ``joint=True``: the same problem over the
+        beams and objects together (dense, for comparison; its cost grows cubically).
+
+        Sensors and objects that have just got enough data are estimated first. Returns (and
+        keeps in :attr:`last_solve`) the cost before and after, ‖Jᵀr‖ of the full problem after,
+        and the number of evaluations."""
+        from scipy.optimize import least_squares
+
+        self._start_unknown()
+        problem = self._layout()
+        x_full = problem.pack(self.lines)
+        before = float(np.sum(problem.residuals(x_full) ** 2))
+        if len(problem.rows) == 0 or len(problem.k) < len(x_full) + 1:
+            self.last_solve = SolveReport(before, before, 0.0, 0, len(problem.k), len(x_full))
+            return self.last_solve
+        if joint:
+            res = least_squares(problem.residuals, x_full, jac=lambda x: problem.jacobian(x).toarray(),
+                                method="lm", x_scale="jac", xtol=xtol, ftol=SOLVE_FTOL, gtol=SOLVE_GTOL,
+                                max_nfev=max_nfev)
+            candidate = res.x
+        else:
+            vp = _Projected(problem)
+            res = least_squares(vp.residuals, vp.start(x_full), jac=vp.jacobian, method="lm", x_scale="jac",
+                                xtol=xtol, ftol=SOLVE_FTOL, gtol=SOLVE_GTOL, max_nfev=max_nfev)
+            candidate = vp.full(res.x)
+        after = float(np.sum(problem.residuals(candidate) ** 2))
+        if after <= before:  # never accept a worse point
+            self._store(problem, candidate)
+        else:
+            after = before
+        self.last_solve = SolveReport(before, after, self.gradient_norm(), int(res.nfev), len(problem.k),
+                                      len(x_full))
+        return self.last_solve
+
+    def gradient_norm(self) -> float:
+        """‖∇J‖/2 = ‖Jᵀr‖ of eq. 5 over the free parameters at the current estimate (0 at an optimum)."""
+        problem = self._layout()
+        x = problem.pack(self.lines)
+        return float(np.linalg.norm(problem.jacobian(x).T @ problem.residuals(x)))
+
+    def object_covariance(self, objects: Sequence[int] | None = None) -> np.ndarray:
+        """Covariance of each object's (vx, cx, vy, cy) (its centre at its reference time) in the
+        adaptive frame, relative to o1 and o2: the object blocks of :meth:`covariance`. Shape
+        (len(objects), 4, 4); NaN for objects not estimated or without redundancy; the gauge's
+        fixed components have zero variance."""
+        objs = list(range(self.objects)) if objects is None else [int(o) for o in objects]
+        out = np.full((len(objs), OBJECT_UNKNOWNS, OBJECT_UNKNOWNS), np.nan)
+        known = self.object_known()
+        for i, obj in enumerate(objs):
+            if known[obj]:
+                cov = self.covariance([obj], beams=False)
+                if cov is not None:
+                    out[i] = cov
+        return out
+
+    def covariance(self, objects: Sequence[int], *, beams: bool = True) -> np.ndarray | None:
+        """Joint covariance s²·(JᵀJ)⁻¹ of eq. 5 at the current estimate (s² = J/(measurements −
+        parameters)) of the beams (a, b) of every sensor (2·sensors rows, if ``beams``; zero for
+        beams not estimated) and of ``objects``' (vx, cx, vy, cy) (4 rows each; zero for the
+        adaptive frame's fixed components), in that order. Blocks of the inverse come from the
+        Schur complement on the beams, so the cost is linear in the number of objects. None if
+        there is no redundancy or an object in ``objects`` is not estimated."""
+        problem = self._layout()
+        objs = [int(o) for o in objects]
+        x = problem.pack(self.lines)
+        dof = len(problem.k) - len(x)
+        known = self.object_known()
+        if dof <= 0 or len(problem.rows) == 0 or not all(known[o] for o in objs):
+            return None
+        r = problem.residuals(x)
+        s2 = float(r @ r) / dof
+        mask = np.zeros(self.times.shape, dtype=bool)
+        mask[problem.k, problem.l] = True
+        tau = np.where(mask, self.times - self.t_refs, 0.0)
+        free = problem.free
+        lines = np.where(np.isfinite(self.lines), self.lines, 0.0)
+        a, b = lines[:, :1], lines[:, 1:]
+        ones = np.ones_like(tau)
+        dfree = np.where(mask[..., None], np.stack([a * tau, a * ones, b * tau, b * ones], -1), 0.0) * free[None]
+        w = np.where(np.isfinite(problem.w), problem.w, 0.0)
+        jb = np.where(mask[..., None], np.stack([w[:, 1] + w[:, 0] * tau, w[:, 3] + w[:, 2] * tau], -1), 0.0)
+        jb, dfb = jb[problem.rows], dfree[problem.rows]  # known sensors only: L × n × …
+        hoo = np.einsum("kni,knj->nij", dfree, dfree)
+        hoo[:, np.arange(4), np.arange(4)] += ~free  # fixed components: identity, no coupling
+        cross = np.einsum("knj,knc->nkjc", jb, dfb).reshape(self.objects, -1, OBJECT_UNKNOWNS)  # H_bo per object
+        nl = len(problem.rows)
+        hbb = np.zeros((nl, LINE_UNKNOWNS, nl, LINE_UNKNOWNS))
+        hbb[np.arange(nl), :, np.arange(nl), :] = np.einsum("kni,knj->kij", jb, jb)
+        try:
+            hoo_inv = np.linalg.inv(hoo)
+            schur_inv = np.linalg.inv(hbb.reshape(nl * LINE_UNKNOWNS, -1)
+                                      - np.einsum("npc,ncd,nqd->pq", cross, hoo_inv, cross))
+        except np.linalg.LinAlgError:
+            return None
+        left = [hoo_inv[o] @ cross[o].T for o in objs]  # Hoo⁻¹·H_ob per object
+        blocks_b = [-schur_inv @ lo.T for lo in left]  # Cov(beams, object)
+        size = LINE_UNKNOWNS * self.sensors if beams else 0
+        out = np.zeros((size + OBJECT_UNKNOWNS * len(objs),) * 2)
+        cols = (LINE_UNKNOWNS * problem.rows[:, None] + np.arange(LINE_UNKNOWNS)).ravel()
+        if beams:
+            out[np.ix_(cols, cols)] = schur_inv
+        for i, oi in enumerate(objs):
+            si = slice(size + 4 * i, size + 4 * i + 4)
+            if beams:
+                out[cols, si] = blocks_b[i]
+                out[si, cols] = blocks_b[i].T
+            for j, oj in enumerate(objs):
+                block = left[i] @ schur_inv @ left[j].T + (hoo_inv[oi] if i == j else 0.0)
+                out[si, size + 4 * j:size + 4 * j + 4] = block
+        # the frame's fixed components: no variance, no covariance
+        fixed = np.concatenate([np.zeros(size, dtype=bool)] + [~free[o] for o in objs])
+        out[fixed, :] = 0.0
+        out[:, fixed] = 0.0
+        return s2 * out
 
     def iterate(self, iterations: int = 1) -> list[float]:
         """``iterations`` block-coordinate Newton iterations (eq. 26 and its object analogue): a
@@ -371,9 +551,10 @@ class AdaptiveBasis:
             costs.append(self.cost())
         return costs
 
-    def _line_step(self) -> None:
-        """Newton step (eqs. 25–26) for every sensor with two known detections of estimated
-        objects: (a, b) ← (a, b) − H⁻¹g with A = vx·t + x0, B = vy·t + y0."""
+    def _line_step(self, only: np.ndarray | None = None) -> None:
+        """Newton step (eqs. 25–26) for every sensor (of the boolean mask ``only``, default all)
+        with two known detections of estimated objects: (a, b) ← (a, b) − H⁻¹g with
+        A = vx·t + x0, B = vy·t + y0."""
         known = self.object_known()
         tau = self.times - self.t_refs  # per-object local time (s)
         mask = self.omega & known[None, :]
@@ -385,6 +566,8 @@ class AdaptiveBasis:
         resid = np.where(mask, A * current[:, :1] + B * current[:, 1:] - 1.0, 0.0)
         g = np.stack([(resid * A).sum(1), (resid * B).sum(1)], -1)
         ok = (mask.sum(1) >= LINE_UNKNOWNS) & _well_conditioned(H)
+        if only is not None:
+            ok &= only
         if ok.any():
             self.lines[ok] = current[ok] - np.linalg.solve(H[ok], g[ok][..., None])[..., 0]
 
@@ -461,6 +644,145 @@ class AdaptiveBasis:
         """Adaptive-frame position(s) of object ``obj`` at time(s) ``t`` (s), shape t.shape + (2,)."""
         t = np.asarray(t, dtype=float)
         return self.centres[obj] + self.velocities[obj] * (t - self.t_refs[obj])[..., None]
+
+
+@dataclass(frozen=True)
+class SolveReport:
+    """One :meth:`AdaptiveBasis.solve`: cost J (eq. 5) before and after, ‖Jᵀr‖ after, function
+    evaluations, measurements and free parameters."""
+
+    cost_before: float
+    cost: float
+    gradient: float
+    evaluations: int
+    measurements: int
+    parameters: int
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """Eq. 5 as a least-squares problem in the free parameters: the estimated beams (a, b) of
+    sensors ``rows``, then the free components of each object's w = (vx, cx, vy, cy) (``free``);
+    measurements (sensor ``k``, object ``l``) at local times ``tau`` (s); ``w`` the current
+    object parameters (the fixed components are taken from it)."""
+
+    rows: np.ndarray
+    free: np.ndarray
+    line_col: np.ndarray
+    obj_col: np.ndarray
+    k: np.ndarray
+    l: np.ndarray
+    tau: np.ndarray
+    w: np.ndarray
+
+    def pack(self, lines: np.ndarray) -> np.ndarray:
+        return np.concatenate([lines[self.rows].ravel(), self.w[self.free]])
+
+    def unpack(self, x: np.ndarray, lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        nb = LINE_UNKNOWNS * len(self.rows)
+        lines = lines.copy()
+        lines[self.rows] = x[:nb].reshape(-1, LINE_UNKNOWNS)
+        w = self.w.copy()
+        w[self.free] = x[nb:]
+        return lines, w
+
+    def _parts(self, x: np.ndarray):
+        nb = LINE_UNKNOWNS * len(self.rows)
+        ab = np.zeros((len(self.line_col), LINE_UNKNOWNS))
+        ab[self.rows] = x[:nb].reshape(-1, LINE_UNKNOWNS)
+        w = self.w.copy()
+        w[self.free] = x[nb:]
+        a, b = ab[self.k, 0], ab[self.k, 1]
+        wl = w[self.l]
+        return a, b, wl[:, 1] + wl[:, 0] * self.tau, wl[:, 3] + wl[:, 2] * self.tau
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        """τ_kl of eq. 4 per known measurement."""
+        a, b, A, B = self._parts(x)
+        return a * A + b * B - 1.0
+
+    def jacobian(self, x: np.ndarray):
+        """∂τ_kl/∂(a_k, b_k) = (A, B) and ∂τ_kl/∂(vx, cx, vy, cy)_l = (a·t, a, b·t, b) (eq. 24), sparse."""
+        from scipy.sparse import csr_matrix
+
+        a, b, A, B = self._parts(x)
+        n = len(self.k)
+        vals = np.column_stack([A, B, a * self.tau, a, b * self.tau, b])
+        cols = np.column_stack([self.line_col[self.k], self.obj_col[self.l]])
+        rows = np.repeat(np.arange(n), cols.shape[1]).reshape(n, -1)
+        keep = cols >= 0
+        size = LINE_UNKNOWNS * len(self.rows) + int(self.free.sum())
+        return csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(n, size))
+
+
+class _Projected:
+    """Variable projection of a :class:`_Problem`: eq. 5 as a function of the beams alone, each
+    object's free components at their least-squares optimum for those beams. Arrays are
+    sensors × objects, zero outside the known measurements."""
+
+    def __init__(self, problem: _Problem):
+        self.p = problem
+        m, n = len(problem.line_col), len(problem.w)
+        self.mask = np.zeros((m, n), dtype=bool)
+        self.mask[problem.k, problem.l] = True
+        self.tau = np.zeros((m, n))
+        self.tau[problem.k, problem.l] = problem.tau
+        self.nb = LINE_UNKNOWNS * len(problem.rows)
+        self.w = problem.w.copy()
+        self._cache: tuple[bytes, tuple] | None = None
+
+    def start(self, x_full: np.ndarray) -> np.ndarray:
+        return x_full[:self.nb].copy()
+
+    def _eval(self, beams: np.ndarray):
+        key = beams.tobytes()
+        if self._cache is not None and self._cache[0] == key:
+            return self._cache[1]
+        p, mask, tau = self.p, self.mask, self.tau
+        ab = np.zeros((len(p.line_col), LINE_UNKNOWNS))
+        ab[p.rows] = beams.reshape(-1, LINE_UNKNOWNS)
+        a, b = ab[:, :1], ab[:, 1:]
+        ones = np.ones_like(tau)
+        design = np.where(mask[..., None], np.stack([a * tau, a * ones, b * tau, b * ones], -1), 0.0)  # m × n × 4
+        free = p.free
+        fixed = np.where(free, 0.0, np.where(np.isfinite(self.w), self.w, 0.0))
+        y = np.where(mask, 1.0 - np.einsum("knc,nc->kn", design, fixed), 0.0)
+        dfree = design * free[None, :, :]
+        gram = np.einsum("kni,knj->nij", dfree, dfree)
+        gram[:, np.arange(4), np.arange(4)] += ~free
+        rhs = np.einsum("knc,kn->nc", dfree, y)
+        try:
+            inv = np.linalg.inv(gram)
+        except np.linalg.LinAlgError:
+            inv = np.linalg.pinv(gram)
+        u = np.einsum("nij,nj->ni", inv, rhs)
+        w = np.where(free, u, fixed)
+        r = np.where(mask, np.einsum("knc,nc->kn", dfree, u) - y, 0.0)
+        out = (ab, w, dfree, inv, r)
+        self._cache = (key, out)
+        return out
+
+    def residuals(self, beams: np.ndarray) -> np.ndarray:
+        return self._eval(beams)[4][self.p.k, self.p.l]
+
+    def jacobian(self, beams: np.ndarray) -> np.ndarray:
+        """Kaufman's Jacobian: ∂τ/∂(a_k, b_k) = (A, B) projected off each object's free columns."""
+        ab, w, dfree, inv, _ = self._eval(beams)
+        tau, mask = self.tau, self.mask
+        jb = np.where(mask[..., None], np.stack([w[:, 1] + w[:, 0] * tau, w[:, 3] + w[:, 2] * tau], -1), 0.0)  # m × n × 2
+        cross = np.einsum("knc,knj->nckj", dfree, jb)  # object l's Jₒᵀ·J_b, n × 4 × m × 2
+        corr = np.einsum("knc,ncd,ndpj->knpj", dfree, inv, cross)  # m × n × m × 2
+        m = len(ab)
+        full = -corr
+        idx = np.arange(m)
+        full[idx, :, idx, :] += jb
+        rows = full[self.p.k, self.p.l]  # measurements × m × 2
+        return rows[:, self.p.rows, :].reshape(len(self.p.k), -1)
+
+    def full(self, beams: np.ndarray) -> np.ndarray:
+        """The full parameter vector (beams, then the objects' free components) at ``beams``."""
+        _, w, *_ = self._eval(beams)
+        return np.concatenate([beams, w[self.p.free]])
 
 
 def _well_conditioned(H: np.ndarray) -> np.ndarray:

@@ -18,19 +18,29 @@ rules 1–2 and the end of the stream close passes).
 
 Phase 1 runs on the first four passes that allow it (six sensors detected the first three, five
 of them the fourth, all four within 12 consecutive passes, and the input is not degenerate). From then on every completed pass is
-estimated and every parameter refined (phase 2, ``iterations`` Newton iterations per pass), and
-phase 3 maps the result to real-world coordinates: from the sensors' known positions (``x``,
-``y``; at least six, not on one line) and/or known beams (``a``, ``b``), else from the
-``calibration`` passes. :attr:`AdaptiveBasisTracker.frame_source` says which was used and
-:attr:`~AdaptiveBasisTracker.frame_reason` why.
+estimated and every parameter refined (phase 2: ``phase2="lsq"``, the default, solves eq. 5 over
+all passes so far to its least-squares optimum; ``"paper"`` makes ``iterations`` Newton
+iterations per pass, §7.2), and phase 3 maps the result to real-world coordinates: from the
+sensors' known positions (``x``, ``y``; at least six, not on one line) and/or known beams
+(``a``, ``b``), else from the ``calibration`` passes. :attr:`AdaptiveBasisTracker.frame_source`
+says which was used, :attr:`~AdaptiveBasisTracker.frame_reason` why, and
+:attr:`~AdaptiveBasisTracker.frame_residual` how well it fits (RMS, units: the distance of each
+known point from where the frame puts it — calibration entry/exit points, or known sensor
+positions from their estimated beams, or each known beam's ends in the region from the
+estimated beam). A residual above :data:`FRAME_RESIDUAL_WARNING` adds one warning to
+:attr:`~AdaptiveBasisTracker.warnings` (naming the calibration passes); :meth:`info` gathers
+all this.
 
 Output: one :class:`LineObjectEstimate` per pass, in pass order, each exactly once — the passes
 before phase 1 all at once when phase 1 succeeds, later ones when they complete. ``t_first`` and
 ``t_last`` are the pass's first and last detection times (s); entry and exit are where the
 estimated straight path crosses the region's border (units; the positions at the first and last
 detection if the path misses the region); ``vx``, ``vy`` its real-world velocity (units/s, equal
-to (exit − entry) / (exit time − entry time)). A pass with fewer than four detections by
-estimated beams cannot be estimated and is skipped (listed in :attr:`skipped`).
+to (exit − entry) / (exit time − entry time)); ``entry_sd``, ``exit_sd`` the standard deviations
+(units, √ of the 2 × 2 covariance's trace) of the path's position at the entry and exit times,
+from eq. 5's least-squares covariance (the real-world frame counted as exact). A pass with fewer
+than four detections by estimated beams cannot be estimated and is skipped (listed in
+:attr:`skipped`).
 """
 
 from __future__ import annotations
@@ -41,6 +51,7 @@ import numpy as np
 
 from bintrack.trackers.laser.adaptive_basis import (
     PHASE1_SENSORS,
+    PHASE2_METHODS,
     AdaptiveBasis,
     DegenerateError,
     Frame,
@@ -53,19 +64,26 @@ from bintrack.errors import CommandError
 from bintrack.messages import Deployment, LineObjectEstimate, LineSensor, Transition
 
 NAME = "adaptive-basis"
+FRAME_RESIDUAL_WARNING = 0.25  # units (ft on the testbed): a frame misfit above this is warned about
+# a misfit is warned about from this pass on: with ±0.02 s timing noise the frame fitted after
+# pass 4 misfits correct calibration passes by up to 0.31 ft, from pass 8 on by at most 0.24 ft
+# (simulated testbeds, seeds 21–40)
+FRAME_WARNING_PASSES = 8
 
 
 class AdaptiveBasisTracker:
     """Paper 003 at the base station: ``update(transition)`` / ``flush(t)`` → ``LineObjectEstimate``s.
 
-    ``iterations``: Newton iterations per pass (paper: 5). ``gap`` (s): silence that ends a pass
+    ``phase2``: "lsq" (least-squares optimum of eq. 5 after every pass, default) or "paper"
+    (``iterations`` Newton iterations per pass, paper: 5). ``gap`` (s): silence that ends a pass
     (default: see the module docstring). Raises :class:`CommandError` if the deployment has fewer
     than six line sensors or nothing can fix real-world coordinates.
     """
 
     name = NAME
 
-    def __init__(self, deployment: Deployment, *, iterations: int = 5, gap: float | None = None):
+    def __init__(self, deployment: Deployment, *, iterations: int = 5, gap: float | None = None,
+                 phase2: str = "lsq"):
         sensors = [s for s in deployment.sensors if isinstance(s, LineSensor)]
         if not sensors:
             raise CommandError(f"tracker {NAME} needs line sensors; this deployment has none")
@@ -74,6 +92,8 @@ class AdaptiveBasisTracker:
                                f"this deployment has {len(sensors)}")
         if iterations < 0:
             raise CommandError(f"tracker {NAME}: iterations must be ≥ 0, got {iterations}")
+        if phase2 not in PHASE2_METHODS:
+            raise CommandError(f"tracker {NAME}: phase 2 must be one of {', '.join(PHASE2_METHODS)}, got {phase2!r}")
         if gap is not None and not (math.isfinite(gap) and gap > 0):
             raise CommandError(f"tracker {NAME}: gap must be a positive number of seconds, got {gap}")
         self.deployment = deployment
@@ -88,7 +108,7 @@ class AdaptiveBasisTracker:
         if not self.frame_plan:
             raise CommandError(f"tracker {NAME} cannot place its estimates in real-world coordinates: "
                                f"{self.frame_reason}")
-        self.basis = AdaptiveBasis(len(sensors), iterations=iterations)
+        self.basis = AdaptiveBasis(len(sensors), iterations=iterations, phase2=phase2)
         self.gap_source = "option" if gap is not None else ("calibration" if self.calibration else "learnt")
         if gap is None and self.calibration:
             gap = 0.5 * min(p.t_exit - p.t_entry for p in self.calibration)
@@ -96,6 +116,11 @@ class AdaptiveBasisTracker:
         self.frame: Frame | None = None
         self.frame_source: str | None = None
         self.frame_errors: dict[str, str] = {}  # the last reason each source failed, if it did
+        self.frame_residual: float | None = None  # RMS misfit of the frame's known points, units
+        self.frame_points: str = ""  # what the residual was measured on
+        self.warnings: list[str] = []
+        self._frame_inputs: tuple = ("", [], None)  # what fixed the frame: for the uncertainty
+        self._warn_after = FRAME_WARNING_PASSES
         self.skipped: list[int] = []
         self.passes: list[tuple[float, float]] = []  # (t_first, t_last) per completed pass
         self._current: dict[int, float] = {}
@@ -144,19 +169,67 @@ class AdaptiveBasisTracker:
                     known = basis.line_known()
                     positions = {k: p for k, p in self.positions.items() if known[k]}
                     beams = {k: ab for k, ab in self.known_beams.items() if known[k]}
-                    return frame_from_sensors(basis.lines, positions, beams)
-                pairs = []
+                    frame = frame_from_sensors(basis.lines, positions, beams)
+                    self._sensor_residual(frame, positions, beams)
+                    self._frame_inputs = ("sensors", positions, beams)
+                    return frame
+                pairs, used, matched = [], [], []
                 for cal in self.calibration:
                     obj = self._calibration_object(cal.t_entry, cal.t_exit)
                     if obj is None or not basis.object_known()[obj]:
                         continue
                     pairs.append((basis.position(obj, cal.t_entry), cal.entry))
                     pairs.append((basis.position(obj, cal.t_exit), cal.exit))
-                return frame_from_points(pairs)
+                    used.append(cal.pass_)
+                    matched.append((obj, cal))
+                frame = frame_from_points(pairs)
+                self._frame_inputs = ("calibration", matched, None)
+                misfit = [np.hypot(*(frame.points(q) - np.asarray(p))) for q, p in pairs]
+                self._residual(frame, misfit, "the entry and exit points of calibration passes "
+                               + ", ".join(map(str, used)), "check those passes' entry/exit points and times")
+                return frame
             except DegenerateError as exc:
                 self.frame_errors[source] = str(exc)
                 continue
         return None
+
+    def _sensor_residual(self, frame: Frame, positions: dict, beams: dict) -> None:
+        """Residual of a frame from sensors: each known position's distance from its estimated
+        beam, each known beam's two ends in the region from the estimated beam (units)."""
+        real = frame.lines(self.basis.lines)
+        misfit = []
+        for k, p in positions.items():
+            misfit.append(abs(real[k] @ np.asarray(p, dtype=float) - 1.0) / np.hypot(*real[k]))
+        for k, (a, b) in beams.items():
+            foot = np.array([a, b]) / (a * a + b * b)
+            span = border_times(foot, np.array([-b, a]), 0.0, self._box)
+            for s in span or ():
+                point = foot + np.array([-b, a]) * (s - 0.0)
+                misfit.append(abs(real[k] @ point - 1.0) / np.hypot(*real[k]))
+        names = [self.ids[k] for k in positions] + [self.ids[k] for k in beams]
+        self._residual(frame, misfit, f"the known positions/beams of sensors {', '.join(dict.fromkeys(names))}",
+                       "check those sensors' x, y, a, b")
+
+    def _residual(self, frame: Frame, misfit: list[float], what: str, advice: str) -> None:
+        self.frame_residual = float(np.sqrt(np.mean(np.square(misfit)))) if misfit else None
+        self.frame_points = what
+        if (self.frame_residual is not None and self.frame_residual > FRAME_RESIDUAL_WARNING
+                and len(self.passes) >= self._warn_after and not self.warnings):
+            units = self.deployment.units
+            self.warnings.append(
+                f"{NAME}: the real-world frame misfits {what} by {self.frame_residual:.3g} {units} RMS "
+                f"(above {FRAME_RESIDUAL_WARNING:g} {units}) after pass {len(self.passes)}: {advice}")
+
+    def info(self) -> dict:
+        """What the tracker knows about its own state: phase 2 method, frame source, reason,
+        residual (units) and what it was measured on, gap (s), passes, skipped passes, warnings."""
+        solve = self.basis.last_solve
+        return {"phase2": self.basis.phase2, "frame_source": self.frame_source, "frame_reason": self.frame_reason,
+                "frame_residual": self.frame_residual, "frame_points": self.frame_points,
+                "units": self.deployment.units, "gap": self.gap, "gap_source": self.gap_source,
+                "passes": len(self.passes), "estimated": self._emitted - len(self.skipped),
+                "skipped": list(self.skipped), "cost": None if solve is None else solve.cost,
+                "gradient": None if solve is None else solve.gradient, "warnings": list(self.warnings)}
 
     # ---------------------------------------------------------------- push interface
 
@@ -214,6 +287,53 @@ class AdaptiveBasisTracker:
         self._emitted = self.basis.objects
         return out
 
+    def _point_sds(self, obj: int, times: tuple[float, float]) -> list[float | None]:
+        """Standard deviations (units, √ trace) of pass ``obj``'s real-world positions at
+        ``times`` (s): eq. 5's joint covariance of the beams, this pass and the calibration
+        passes, propagated through phase 3 (the frame is refitted from the perturbed estimates)
+        by central differences."""
+        basis = self.basis
+        source, inputs, beams_known = self._frame_inputs
+        others = [o for o, _ in inputs] if source == "calibration" else []
+        objs = [obj] + [o for o in dict.fromkeys(others) if o != obj]
+        cov = basis.covariance(objs)
+        if cov is None or not np.all(np.isfinite(cov)):
+            return [None, None]
+        m = basis.sensors
+        w = np.column_stack([basis.velocities[:, 0], basis.centres[:, 0], basis.velocities[:, 1], basis.centres[:, 1]])
+        x0 = np.concatenate([basis.lines.ravel(), w[objs].ravel()])
+        t_refs = basis.t_refs
+
+        def points(x: np.ndarray) -> np.ndarray:
+            ws = {o: x[2 * m + 4 * i:2 * m + 4 * i + 4] for i, o in enumerate(objs)}
+
+            def at(o, t):
+                return ws[o][[1, 3]] + ws[o][[0, 2]] * (t - t_refs[o])
+
+            if source == "sensors":
+                frame = frame_from_sensors(x[:2 * m].reshape(m, 2), inputs, beams_known)
+            else:
+                frame = frame_from_points([(at(o, c.t_entry), c.entry) for o, c in inputs]
+                                          + [(at(o, c.t_exit), c.exit) for o, c in inputs])
+            return np.concatenate([frame.points(at(obj, t)) for t in times])
+
+        sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        active = np.flatnonzero(sd > 0)
+        jac = np.zeros((4, len(x0)))
+        try:
+            for i in active:
+                step = np.zeros_like(x0)
+                step[i] = 1e-3 * sd[i]
+                jac[:, i] = (points(x0 + step) - points(x0 - step)) / (2 * step[i])
+        except DegenerateError:
+            return [None, None]
+        var = jac @ cov @ jac.T
+        out = []
+        for i in (0, 2):
+            value = math.sqrt(max(float(var[i, i] + var[i + 1, i + 1]), 0.0))
+            out.append(value if math.isfinite(value) else None)
+        return out
+
     def _estimate(self, obj: int) -> LineObjectEstimate | None:
         basis, frame = self.basis, self.frame
         t_ref = float(basis.t_refs[obj])
@@ -225,10 +345,12 @@ class AdaptiveBasisTracker:
         values = [*entry, *exit_, *velocity]
         if not all(math.isfinite(v) for v in values):
             return None
+        sds = self._point_sds(obj, times)
         return LineObjectEstimate(object=obj + 1, t_first=t_first, t_last=t_last,
                                   entry_x=float(entry[0]), entry_y=float(entry[1]),
                                   exit_x=float(exit_[0]), exit_y=float(exit_[1]),
-                                  vx=float(velocity[0]), vy=float(velocity[1]))
+                                  vx=float(velocity[0]), vy=float(velocity[1]),
+                                  entry_sd=sds[0], exit_sd=sds[1])
 
     # ---------------------------------------------------------------- views
 
