@@ -27,6 +27,7 @@ from bintrack.formats import open_dataset
 from bintrack.keys import Keys, parse_key
 from bintrack.messages import Clock, MessageError, decode
 from bintrack.live.stack import stack_commands
+from bintrack.live.secure_profile import secure_up
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_arguments, tracker_options
 from bintrack.trackers import TRACKER_NAMES, check_options as make_tracker_check
 
@@ -46,6 +47,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--listen", default=DEFAULT_ENDPOINT, metavar="ENDPOINT",
                         help="where the embedded router listens (default: %(default)s)")
     parser.add_argument("--net", help="network name (default: the dataset's deployment name, else 'default')")
+    parser.add_argument("--secure", action="store_true",
+                        help="mutual TLS and per-role access control (deploy/secure/); --listen must be a tls/ endpoint")
+    parser.add_argument("--certs", default="certs", metavar="DIR",
+                        help="with --secure: the certificates of `bintrack certs --out DIR` (default: %(default)s)")
     parser.add_argument("--progress-interval", type=positive_float, default=1.0, metavar="S",
                         help="seconds between progress lines (default: %(default)s)")
 
@@ -132,8 +137,12 @@ def run(args: argparse.Namespace) -> int:
     commands = stack_commands(tracker=args.tracker, endpoint=args.listen, net=net, source=args.source,
                               speed=args.speed, loop=args.loop, record=args.record, estimates=options.estimates,
                               tracker_args=tracker_arguments(options))
+    if args.secure:
+        commands, config = secure_up(commands, args.certs, args.listen)
+    else:
+        config = router_config([args.listen])
     try:
-        router = zenoh.open(router_config([args.listen]))
+        router = zenoh.open(config)
     except zenoh.ZError as exc:
         raise CommandError(f"cannot start the router on {args.listen} ({str(exc).split(' at ')[0]}); "
                            "is another one running? choose another with --listen") from None
