@@ -170,3 +170,24 @@ def test_up_secure_needs_a_tls_endpoint_and_the_certificates(certs, tmp_path, ca
     assert "--secure needs a tls/ endpoint" in capsys.readouterr().err
     assert cli.main(["up", str(DARPA3), "--secure", "--certs", str(tmp_path), "--listen", "tls/127.0.0.1:1"]) == 2
     assert "make the certificates with `bintrack certs" in capsys.readouterr().err
+
+
+def test_the_compose_override_runs_every_service_of_the_base_file_under_its_role():
+    import yaml
+
+    base = yaml.safe_load((REPO / "docker-compose.yml").read_text())["services"]
+    secure = yaml.safe_load((REPO / "docker-compose.secure.yml").read_text())["services"]
+    assert set(secure) == set(base)
+    assert secure["router"]["command"] == ["-c", "/secure/router.json5"]
+    for name, service in secure.items():
+        assert {"./deploy/secure:/secure:ro", "./certs:/certs:ro"} <= set(service["volumes"]), name
+        if name == "router":
+            continue
+        role = ["-c", f"/secure/{name}.json5"]
+        tls = [{"tcp/router:7447": "tls/router:7447"}.get(a, a) for a in base[name]["command"]]
+        assert service["command"] == tls + role, name
+        health = [{"tcp/router:7447": "tls/router:7447"}.get(a, a) for a in base[name]["healthcheck"]["test"]]
+        assert service["healthcheck"]["test"] == health + role, name
+        config = zenoh.Config.from_file(str(REPO / "deploy" / "secure" / f"{name}.json5"))
+        assert "/certs/" in str(config.get_json("transport/link/tls/connect_certificate"))
+    zenoh.Config.from_file(str(REPO / "deploy" / "secure" / "router.json5"))
