@@ -16,7 +16,7 @@ from cryptography import x509
 from bintrack.cli import main as cli
 from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
 from bintrack.live.bus import client_config as plain_client_config
-from bintrack.live.secure_profile import client_config, router_config
+from bintrack.live.secure_profile import client_config, restrict_sensor_agents, router_config
 from bintrack.messages import Clock, Track, TrackSet, encode
 
 from conftest import REPO, free_port
@@ -191,3 +191,34 @@ def test_the_compose_override_runs_every_service_of_the_base_file_under_its_role
         config = zenoh.Config.from_file(str(REPO / "deploy" / "secure" / f"{name}.json5"))
         assert "/certs/" in str(config.get_json("transport/link/tls/connect_certificate"))
     zenoh.Config.from_file(str(REPO / "deploy" / "secure" / "router.json5"))
+
+
+def test_a_sensor_agent_restricted_to_its_sensors_cannot_put_another_sensors_transitions(certs, tmp_path):
+    assert cli.main(["certs", "--out", str(certs), "--ca", str(certs), "--roles", "sensor_agent-north"]) == 0
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    config = router_config(certs, [endpoint])
+    restrict_sensor_agents(config, {"sensor_agent-north": ["n001", "n002"]})
+    router = zenoh.open(config)
+    observer = Observer(certs, endpoint)
+    north = _client("sensor_agent-north", certs, endpoint)
+    try:
+        north.put(f"{NET}/sensor/n003/transition", b"t")  # another agent's sensor
+        north.put(f"{NET}/tracks", b"t")
+        north.put(f"{NET}/sensor/n001/transition", b"t")
+        north.put(f"{NET}/control/progress/sensor_agent/north", encode(Clock(t=1.0)))
+        north.put(f"{NET}/sensor/n002/transition", b"t")
+        seen = observer.wait_for(f"{NET}/sensor/n001/transition", f"{NET}/sensor/n002/transition",
+                                 f"{NET}/control/progress/sensor_agent/north")
+        assert f"{NET}/sensor/n003/transition" not in seen and f"{NET}/tracks" not in seen, seen
+    finally:
+        north.close()
+        observer.close()
+        router.close()
+
+
+def _client(common_name: str, certs: Path, endpoint: str) -> zenoh.Session:
+    """A sensor-agent client whose certificate is ``common_name``'s."""
+    config = client_config("sensor_agent", certs, [endpoint])
+    config.insert_json5("transport/link/tls/connect_certificate", f'"{certs / (common_name + ".pem")}"')
+    config.insert_json5("transport/link/tls/connect_private_key", f'"{certs / (common_name + "-key.pem")}"')
+    return zenoh.open(config)

@@ -84,3 +84,24 @@ def secure_up(commands: Iterable[ServiceCommand], certs: str, listen: str) -> tu
         raise CommandError(str(exc)) from None
     except zenoh.ZError as exc:
         raise CommandError(f"bad secure profile: {exc}") from None
+
+
+def restrict_sensor_agents(config: zenoh.Config, agents: dict[str, Iterable[str]]) -> None:
+    """Add to a secure router's ``config`` one role per sensor agent: certificate common name
+    ``name`` may publish the transitions of its ``sensors`` only (and read, serve state and
+    report progress as the ``sensor_agent`` role does). ``agents``: common name -> sensor ids."""
+    rules = json.loads(config.get_json("access_control/rules"))
+    subjects = json.loads(config.get_json("access_control/subjects"))
+    policies = json.loads(config.get_json("access_control/policies"))
+    base = next(p for p in policies if p["id"] == "sensor_agent")
+    for name, sensors in agents.items():
+        rules.append({"id": f"{name}-transitions", "messages": ["put"], "flows": ["ingress"], "permission": "allow",
+                      "key_exprs": [f"bintrack/*/sensor/{s}/transition" for s in sensors]})
+        subjects.append({"id": name, "cert_common_names": [name]})
+        policies.append({"id": name, "subjects": [name],
+                         "rules": [r for r in base["rules"] if r != "sensor_agent-puts"]
+                         + ["sensor_agent-control", f"{name}-transitions"]})
+    rules.append({"id": "sensor_agent-control", "messages": ["put"], "flows": ["ingress"], "permission": "allow",
+                  "key_exprs": ["bintrack/*/control/progress/sensor_agent/*", "bintrack/*/control/done/sensor_agent/*"]})
+    for key, value in (("rules", rules), ("subjects", subjects), ("policies", policies)):
+        config.insert_json5(f"access_control/{key}", json.dumps(value))
