@@ -27,6 +27,7 @@ import zenoh
 
 from bintrack.argtypes import int_at_least, non_negative_float, positive_float
 from bintrack.live.bus import Service, add_bus_arguments, service_main
+from bintrack.live.control_guard import control_attachment
 from bintrack.errors import CommandError
 from bintrack.formats import FormatError, TruthRow, open_dataset
 from bintrack.keys import Keys, parse_key
@@ -154,8 +155,16 @@ class Replay(Service):
         super().stop()
         self._changed.set()
 
-    def _put(self, key: str, payload: bytes) -> None:
-        self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+    def _put(self, key: str, payload: bytes, attachment: bytes | None = None) -> None:
+        self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK, attachment=attachment)
+
+    def _control(self) -> bytes:
+        """The attachment of this replay's clock and end of stream (see control_guard)."""
+        step = self.args.clock_period
+        if self.recording is not None:
+            ticks = [t for t, item in replay_items(self.recording) if item is None]
+            step = max([step, *(b - a for a, b in zip(ticks, ticks[1:]))])
+        return control_attachment(self.name, self.instance, step)
 
     # -- the source -------------------------------------------------------------------------
 
@@ -234,13 +243,14 @@ class Replay(Service):
         pacer = Pacer(self.args.speed)
         plan = schedule(self._pass, period=self.args.clock_period, max_ahead=self.args.max_ahead,
                         recorded_ticks=self.recording is not None, loop=self.args.loop)
+        control = self._control()
         started = last_said = time.monotonic()
         for action in plan:
             if not isinstance(action, Publish) and action.ack is not None:
                 if not await self._acknowledged(action.ack):
                     break
             if isinstance(action, End):
-                self._put(self.keys.eos(), encode(EndOfStream(t=action.t)))
+                self._put(self.keys.eos(), encode(EndOfStream(t=action.t)), control)
                 log.info("replay: end of stream at t=%g s after %d samples", action.t, self.published)
                 if action.last:
                     return
@@ -254,7 +264,7 @@ class Replay(Service):
             if self.stopping.is_set():
                 break
             if isinstance(action, Tick):
-                self._put(self.keys.clock(), encode(Clock(t=action.t)))
+                self._put(self.keys.clock(), encode(Clock(t=action.t)), control)
                 self.last_tick = action.t
                 await asyncio.sleep(0)  # let signals and progress reports in
             else:

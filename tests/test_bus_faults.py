@@ -28,6 +28,7 @@ import pytest
 import zenoh
 
 from bintrack.live.bus import client_config, router_config
+from bintrack.live.control_guard import control_attachment
 from bintrack.formats import open_dataset
 from bintrack.keys import Keys, parse_key
 from bintrack.messages import (
@@ -76,7 +77,10 @@ class Bus:
         self.session = client_session(endpoint)
         self.lock = threading.Lock()
         self.seen: list[tuple[str, bytes]] = []
-        self.entities = [self.session.declare_subscriber(self.keys.all(), self._on_sample)]
+        self.entities = [self.session.declare_subscriber(self.keys.all(), self._on_sample),
+                         # it plays the replay's part: clock and end of stream from a replay token's holder
+                         self.session.liveliness().declare_token(self.keys.alive("replay", "test"))]
+        self.control = control_attachment("replay", "test")
         if serve_deployment:
             payload = encode(deployment)
             self.entities.append(self.session.declare_queryable(
@@ -87,7 +91,8 @@ class Bus:
             self.seen.append((str(sample.key_expr), sample.payload.to_bytes()))
 
     def put(self, suffix: str, payload) -> None:
-        self.session.put(f"{self.keys.prefix}/{suffix}", payload if isinstance(payload, bytes) else encode(payload))
+        self.session.put(f"{self.keys.prefix}/{suffix}", payload if isinstance(payload, bytes) else encode(payload),
+                         attachment=self.control)
 
     def messages(self, kind: str, start: int = 0) -> list[tuple[str, object]]:
         """(key, decoded message) of every message of key kind ``kind`` seen, from index ``start``."""

@@ -14,6 +14,7 @@ import zenoh
 
 from bintrack.cli import main as cli
 from bintrack.live.bus import client_config, router_config
+from bintrack.live.control_guard import control_attachment
 from bintrack.formats import (
     TruthRow,
     open_dataset,
@@ -155,7 +156,9 @@ def test_transitions_in_shuffled_order_within_the_lateness_bound(tmp_path, zenoh
         session.declare_subscriber(keys.progress(), lambda s: progress.__setitem__(
             str(s.key_expr), decode(Clock, s.payload.to_bytes()).t)),
         session.declare_subscriber(keys.done(), lambda s: done.add(str(s.key_expr))),
+        session.liveliness().declare_token(keys.alive("replay", "test")),  # clock and eos come from a replay
     ]
+    control = control_attachment("replay", "test")
     recording = tmp_path / "shuffled.mcap"
     bus = ("--net", keys.net)
     procs = [services("peer_agent", "--tracker", "equal-weight", *bus, endpoint=zenoh_router),
@@ -163,12 +166,13 @@ def test_transitions_in_shuffled_order_within_the_lateness_bound(tmp_path, zenoh
              services("recorder", "--out", str(recording), *bus, endpoint=zenoh_router)]
     try:
         deadline = time.monotonic() + 60
-        while len(list(session.liveliness().get(keys.alive(), timeout=1.0))) < 3:
+        while len({str(r.ok.key_expr) for r in session.liveliness().get(keys.alive(), timeout=1.0)
+                   if r.ok is not None and "/alive/replay/" not in str(r.ok.key_expr)}) < 3:
             assert time.monotonic() < deadline, [p.log for p in procs]
             time.sleep(0.1)
 
         def tick(t: float) -> None:
-            session.put(keys.clock(), encode(Clock(t=t)))
+            session.put(keys.clock(), encode(Clock(t=t)), attachment=control)
             deadline = time.monotonic() + 30
             while len(progress) < 3 or min(progress.values()) < t:
                 assert time.monotonic() < deadline, (progress, [p.log for p in procs])
@@ -181,7 +185,7 @@ def test_transitions_in_shuffled_order_within_the_lateness_bound(tmp_path, zenoh
                 session.put(keys.transition(tr.sensor), encode(tr))
             tick((block + 1) * 0.4)
         tick((max(blocks) + 2) * 0.4)
-        session.put(keys.eos(), encode(EndOfStream(t=transitions[-1].t)))
+        session.put(keys.eos(), encode(EndOfStream(t=transitions[-1].t)), attachment=control)
         deadline = time.monotonic() + 60
         while not any("/recorder/" in key for key in done):
             assert time.monotonic() < deadline, [p.log for p in procs]

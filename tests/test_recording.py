@@ -13,6 +13,7 @@ import zenoh
 from mcap.reader import make_reader
 
 from bintrack.live.bus import client_config
+from bintrack.live.control_guard import control_attachment
 from bintrack.cli import main as cli
 from bintrack.formats import FormatError, ObjectRow, TrackRow, read_objects, read_tracks
 from bintrack.messages import (
@@ -159,9 +160,13 @@ class Bus:
         self.subscriber = self.session.declare_subscriber(
             f"bintrack/{self.net}/control/progress/recorder/*",
             lambda sample: self.progress.append(msgpack.unpackb(sample.payload.to_bytes())["t"]))
+        # it plays the replay's part: clock and end of stream come from a replay token's holder
+        self.token = self.session.liveliness().declare_token(f"bintrack/{self.net}/alive/replay/test")
+        self.control = control_attachment("replay", "test")
 
     def put(self, suffix: str, payload) -> None:
-        self.session.put(f"bintrack/{self.net}/{suffix}", payload if isinstance(payload, bytes) else encode(payload))
+        self.session.put(f"bintrack/{self.net}/{suffix}", payload if isinstance(payload, bytes) else encode(payload),
+                         attachment=self.control)
 
     def wait_for(self, service: str, timeout: float = 20.0) -> None:
         deadline = time.monotonic() + timeout
@@ -178,6 +183,7 @@ class Bus:
             time.sleep(0.02)
 
     def close(self) -> None:
+        self.token.undeclare()
         self.subscriber.undeclare()
         self.queryable.undeclare()
         self.session.close()

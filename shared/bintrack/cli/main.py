@@ -28,6 +28,7 @@ SUBCOMMANDS = {
     "export": ("bintrack.cli.export_command", "write a recording's tracks, estimates, objects or velocities as CSV"),
     "watch": ("bintrack.cli.watch_command", "print live tracks, estimates or transitions of a network until Ctrl-C"),
     "view": ("bintrack.cli.view_command", "the map in the browser: the live network, or a recording with a time slider"),
+    "certs": ("bintrack.cli.certs_command", "make a CA and a certificate + key per role for the secure profile"),
     "bounds": ("bintrack.cli.bounds_command", "print the analytic accuracy limits of the arc tracker (paper 001 §4)"),
 }
 

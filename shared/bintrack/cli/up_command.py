@@ -28,6 +28,7 @@ from bintrack.formats import open_dataset
 from bintrack.keys import Keys, parse_key
 from bintrack.messages import Clock, MessageError, decode
 from bintrack.live.stack import stack_commands
+from bintrack.live.secure_profile import secure_up
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_arguments, tracker_options
 from bintrack.trackers import TRACKER_NAMES, check_options as make_tracker_check
 from bintrack.view.map_server import page_url
@@ -54,6 +55,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="HTTP port of the map (default: %(default)s)")
     parser.add_argument("--view-bind", default="127.0.0.1", metavar="ADDRESS",
                         help="address the map is served on (default: %(default)s, this machine only)")
+    parser.add_argument("--secure", action="store_true",
+                        help="mutual TLS and per-role access control (deploy/secure/); --listen must be a tls/ endpoint")
+    parser.add_argument("--certs", default="certs", metavar="DIR",
+                        help="with --secure: the certificates of `bintrack certs --out DIR` (default: %(default)s)")
     parser.add_argument("--progress-interval", type=positive_float, default=1.0, metavar="S",
                         help="seconds between progress lines (default: %(default)s)")
 
@@ -142,8 +147,12 @@ def run(args: argparse.Namespace) -> int:
                               tracker_args=tracker_arguments(options),
                               view_port=args.view_port if getattr(args, "view", False) else None,
                               view_bind=getattr(args, "view_bind", "127.0.0.1"))
+    if args.secure:
+        commands, config = secure_up(commands, args.certs, args.listen)
+    else:
+        config = router_config([args.listen])
     try:
-        router = zenoh.open(router_config([args.listen]))
+        router = zenoh.open(config)
     except zenoh.ZError as exc:
         raise CommandError(f"cannot start the router on {args.listen} ({str(exc).split(' at ')[0]}); "
                            "is another one running? choose another with --listen") from None

@@ -36,6 +36,7 @@ import zenoh
 
 from bintrack.errors import CommandError
 from bintrack.keys import Keys, parse_key
+from bintrack.live.control_guard import guard_control
 from bintrack.messages import Clock, EndOfStream, Message, MessageError, decode, encode
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -262,10 +263,13 @@ class Service:
             raise ValueError(f"{key_expr} is outside this service's network {self.keys.all()}")
         self._routes.append((pattern, handler))
         if self._network_subscriber is None:
+            self.guard = guard_control(self)
             self._network_subscriber = self.session.declare_subscriber(self.keys.all(), self.inbox.callback(self._route))
             self._declared.append(self._network_subscriber)
 
     def _route(self, sample: zenoh.Sample) -> None:
+        if not self.guard.admit(sample):  # clock and control/* only from their token holders
+            return
         for pattern, handler in self._routes:
             if pattern.includes(sample.key_expr):
                 handler(sample)

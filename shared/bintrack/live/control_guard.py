@@ -1,0 +1,158 @@
+"""Control-plane integrity: who may move a service's clock or end its stream.
+
+``clock`` and ``control/eos`` drive every service: a clock tick moves the trackers' watermark,
+an end of stream flushes and ends the run. :class:`ControlGuard` admits them only from a
+sender that holds a replay's liveliness token (``alive/replay/<id>``), named in the sample's
+Zenoh attachment (:func:`control_attachment`), and admits ``control/progress/<service>/<id>``
+and ``control/done/<service>/<id>`` only from a holder of ``alive/<service>/<id>`` (or a
+former one: last words may arrive after the token's withdrawal). A clock tick
+may step at most :data:`MAX_STEPS` times the step its replay announced (its clock period, or
+the largest gap between a recording's ticks) past the last tick admitted. Anything else is
+rejected, counted and logged like a bad payload, naming the sender, and the run goes on.
+
+Without access control on the router the attachment is a claim, not a proof: a client that
+copies a live replay's id passes the token check (the step bound still holds it). Under the
+secure profile (``deploy/secure/``) only the replay's certificate may put ``clock`` and
+``control/eos`` at all, which makes the claim true.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import msgpack
+import zenoh
+
+from bintrack.keys import Keys, parse_key
+from bintrack.messages import Clock, MessageError, decode
+
+MAX_STEPS = 4.0  # a tick may be this many announced steps past the last one admitted
+REPLAY = "replay"
+
+
+def control_attachment(service: str, instance: str, step: float | None = None) -> bytes:
+    """The attachment of a control message: the sender's ``<service>/<instance>`` (whose
+    liveliness token it holds) and, for a replay's clock, its largest tick step ``step`` (s)."""
+    body: dict[str, object] = {"sender": f"{service}/{instance}"}
+    if step is not None:
+        body["step"] = float(step)
+    return msgpack.packb(body)
+
+
+def claimed_sender(sample: zenoh.Sample) -> tuple[str | None, float | None]:
+    """(``<service>/<instance>``, step s) that the sample's attachment claims; (None, None) if none."""
+    if sample.attachment is None:
+        return None, None
+    try:
+        body = msgpack.unpackb(sample.attachment.to_bytes())
+        sender, step = body.get("sender"), body.get("step")
+    except (ValueError, AttributeError, msgpack.UnpackException):
+        return None, None
+    if not isinstance(sender, str) or sender.count("/") != 1:
+        return None, None
+    if not isinstance(step, (int, float)) or not 0 < step < float("inf"):
+        step = None
+    return sender, step
+
+
+@dataclass
+class ControlGuard:
+    """Admits or rejects the control samples a service receives (see the module docstring).
+
+    ``report(sender, reason)`` counts and logs a rejection (the service's bad-input
+    accounting); ``lookup(key)`` is a blocking liveliness get, used when a sender's token has
+    not been seen yet (its declaration and its first message travel on different paths).
+    """
+
+    keys: Keys
+    report: Callable[[str, str], None]
+    lookup: Callable[[str], bool]
+    alive: set[str] = field(default_factory=set)
+    departed: set[str] = field(default_factory=set)
+    last_tick: float | None = None
+    steps: dict[str, float] = field(default_factory=dict)
+    rejected: int = 0
+
+    def on_liveliness(self, sample: zenoh.Sample) -> None:
+        """Follow the ``alive/**`` tokens (a liveliness subscriber's callback)."""
+        try:
+            parsed = parse_key(str(sample.key_expr))
+        except ValueError:
+            return
+        if parsed.kind == "alive":
+            who = f"{parsed.service}/{parsed.instance}"
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.alive.add(who)
+            elif who in self.alive:
+                self.alive.discard(who)
+                self.departed.add(who)
+
+    def holds_token(self, who: str) -> bool:
+        """Whether ``who`` holds its liveliness token, or held it: a service's last words (its
+        done, a replay's end of stream) may arrive after its token's withdrawal."""
+        if who in self.alive or who in self.departed:
+            return True
+        service, instance = who.split("/")
+        if self.lookup(self.keys.alive(service, instance)):
+            self.alive.add(who)
+            return True
+        return False
+
+    def admit(self, sample: zenoh.Sample) -> bool:
+        """True for a sample to hand on: any non-control sample, and control from its holder."""
+        key = str(sample.key_expr)
+        try:
+            kind = parse_key(key).kind
+        except ValueError:
+            return True
+        if kind in ("clock", "eos"):
+            return self._from_replay(sample, kind)
+        if kind in ("progress", "done"):
+            parsed = parse_key(key)
+            who = f"{parsed.service}/{parsed.instance}"
+            if not self.holds_token(who):
+                return self._reject(key, f"forged control: {kind} of {who}, which holds no liveliness token")
+        return True
+
+    def _from_replay(self, sample: zenoh.Sample, kind: str) -> bool:
+        key = str(sample.key_expr)
+        sender, step = claimed_sender(sample)
+        if sender is None:
+            return self._reject(f"{key} (no sender named)",
+                                f"forged control: {kind} from an anonymous sender, not a replay's")
+        if not sender.startswith(f"{REPLAY}/") or not self.holds_token(sender):
+            return self._reject(f"{key} from {sender}",
+                                f"forged control: {kind} from {sender}, which holds no {self.keys.alive(REPLAY)} token")
+        if kind == "eos":
+            return True
+        try:
+            t = decode(Clock, sample.payload.to_bytes()).t
+        except MessageError:
+            return True  # the handler reports the bad payload itself
+        bound = self.steps.setdefault(sender, step) if step is not None else self.steps.get(sender)
+        if self.last_tick is not None and bound is not None and t - self.last_tick > MAX_STEPS * bound:
+            return self._reject(f"{key} from {sender}",
+                                f"clock jump: t={t:g} s after t={self.last_tick:g} s, more than {MAX_STEPS:g} "
+                                f"steps of {bound:g} s")
+        self.last_tick = t if self.last_tick is None else max(self.last_tick, t)
+        return True
+
+    def _reject(self, sender: str, reason: str) -> bool:
+        self.rejected += 1
+        self.report(sender, reason)
+        return False
+
+
+def guard_control(service) -> ControlGuard:
+    """A guard for ``service`` (a :class:`bintrack.live.bus.Service` with an open session and
+    inbox), following the network's liveliness tokens; rejections go to its bad-input count."""
+    session = service.session
+
+    def lookup(key: str) -> bool:
+        return any(reply.ok is not None for reply in session.liveliness().get(key, timeout=1.0))
+
+    guard = ControlGuard(service.keys, service.bad.report, lookup)
+    service._declared.append(session.liveliness().declare_subscriber(
+        service.keys.alive(), service.inbox.callback(guard.on_liveliness), history=True))
+    return guard

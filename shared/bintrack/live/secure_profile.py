@@ -1,0 +1,116 @@
+"""The secure profile (``deploy/secure/``): mutual TLS and per-role access control on Zenoh.
+
+The profile's JSON5 files name the certificates by their compose mount paths (``/certs/…``);
+:func:`router_config` and :func:`client_options` put a local certificate folder (made by
+``bintrack certs``) in their place, so that ``bintrack up --secure`` runs the same profile on
+loopback. A client's role is its certificate's common name, which the router's
+``access_control`` matches.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable
+from dataclasses import replace
+from pathlib import Path
+
+import zenoh
+
+from bintrack.errors import CommandError
+from bintrack.live.stack import ServiceCommand
+
+PROFILE = Path(__file__).resolve().parents[3] / "deploy" / "secure"
+TLS = "transport/link/tls"
+
+
+def _paths(certs: Path, role: str, side: str) -> dict[str, str]:
+    certs = certs.resolve()
+    return {f"{TLS}/root_ca_certificate": str(certs / "ca.pem"),
+            f"{TLS}/{side}_certificate": str(certs / f"{role}.pem"),
+            f"{TLS}/{side}_private_key": str(certs / f"{role}-key.pem")}
+
+
+def check_certs(certs: Path, roles: Iterable[str]) -> None:
+    """Raise FileNotFoundError naming the first certificate or key missing from ``certs``."""
+    for role in ("router", *roles):
+        for path in _paths(certs, role, "connect").values():
+            if not Path(path).is_file():
+                raise FileNotFoundError(f"{path} is missing; make the certificates with `bintrack certs --out {certs}`")
+
+
+def router_config(certs: Path, listen: Iterable[str], profile: Path = PROFILE) -> zenoh.Config:
+    """The secure router's config (``profile``/router.json5) with the certificates of ``certs``
+    and listening on ``listen`` (``tls/…`` endpoints)."""
+    config = zenoh.Config.from_file(str(profile / "router.json5"))
+    for key, value in _paths(certs, "router", "listen").items():
+        config.insert_json5(key, json.dumps(value))
+    config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    return config
+
+
+def client_options(role: str, certs: Path, profile: Path = PROFILE) -> tuple[str, ...]:
+    """The bus options (``-c``, ``--cfg``) that make a service a ``role`` client of the secure router."""
+    options: list[str] = ["-c", str(profile / f"{role}.json5")]
+    for key, value in _paths(certs, role, "connect").items():
+        options += ["--cfg", f"{key}:{json.dumps(value)}"]
+    return tuple(options)
+
+
+def client_config(role: str, certs: Path, endpoints: Iterable[str], profile: Path = PROFILE) -> zenoh.Config:
+    """A ``role`` client session's config of the secure router at ``endpoints``."""
+    config = zenoh.Config.from_file(str(profile / f"{role}.json5"))
+    for key, value in _paths(certs, role, "connect").items():
+        config.insert_json5(key, json.dumps(value))
+    config.insert_json5("connect/endpoints", json.dumps(list(endpoints)))
+    return config
+
+
+# services whose role is not their own name: the map is a read-only viewer
+ROLE_OF_SERVICE = {"view": "viewer"}
+
+
+def role_of(service: str) -> str:
+    """The secure profile's role of service ``service``."""
+    return ROLE_OF_SERVICE.get(service, service)
+
+
+def secure_commands(commands: Iterable[ServiceCommand], certs: Path, profile: Path = PROFILE) -> list[ServiceCommand]:
+    """``commands`` (:func:`bintrack.live.stack.stack_commands`), each service a client of the
+    secure router in its role (:func:`role_of`)."""
+    return [replace(c, args=(*c.args, *client_options(role_of(c.name), certs, profile))) for c in commands]
+
+
+def secure_up(commands: Iterable[ServiceCommand], certs: str, listen: str) -> tuple[list[ServiceCommand], zenoh.Config]:
+    """``bintrack up --secure``: the services as clients of their roles, and the router's config.
+    Raises CommandError for a listen endpoint that is not TLS or a missing certificate."""
+    if not listen.startswith("tls/"):
+        raise CommandError(f"--secure needs a tls/ endpoint to listen on, e.g. --listen tls/127.0.0.1:7447; got {listen}")
+    commands = list(commands)
+    try:
+        check_certs(Path(certs), [role_of(c.name) for c in commands])
+        return secure_commands(commands, Path(certs)), router_config(Path(certs), [listen])
+    except FileNotFoundError as exc:
+        raise CommandError(str(exc)) from None
+    except zenoh.ZError as exc:
+        raise CommandError(f"bad secure profile: {exc}") from None
+
+
+def restrict_sensor_agents(config: zenoh.Config, agents: dict[str, Iterable[str]]) -> None:
+    """Add to a secure router's ``config`` one role per sensor agent: certificate common name
+    ``name`` may publish the transitions of its ``sensors`` only (and read, serve state and
+    report progress as the ``sensor_agent`` role does). ``agents``: common name -> sensor ids."""
+    rules = json.loads(config.get_json("access_control/rules"))
+    subjects = json.loads(config.get_json("access_control/subjects"))
+    policies = json.loads(config.get_json("access_control/policies"))
+    base = next(p for p in policies if p["id"] == "sensor_agent")
+    for name, sensors in agents.items():
+        rules.append({"id": f"{name}-transitions", "messages": ["put"], "flows": ["ingress"], "permission": "allow",
+                      "key_exprs": [f"bintrack/*/sensor/{s}/transition" for s in sensors]})
+        subjects.append({"id": name, "cert_common_names": [name]})
+        policies.append({"id": name, "subjects": [name],
+                         "rules": [r for r in base["rules"] if r != "sensor_agent-puts"]
+                         + ["sensor_agent-control", f"{name}-transitions"]})
+    rules.append({"id": "sensor_agent-control", "messages": ["put"], "flows": ["ingress"], "permission": "allow",
+                  "key_exprs": ["bintrack/*/control/progress/sensor_agent/*", "bintrack/*/control/done/sensor_agent/*"]})
+    for key, value in (("rules", rules), ("subjects", subjects), ("policies", policies)):
+        config.insert_json5(f"access_control/{key}", json.dumps(value))
