@@ -61,6 +61,7 @@ SUITE_SEED = 2026
 PEOPLE = (2, 3, 4, 5, 6, 7, 8, 10)
 HALVES = {"tuning": 1000, "held-out": 2000}  # simulation seeds start here
 DEFAULT_CACHE = Path("/tmp/bintrack-multi-target")
+DEFAULT_PLOT = Path(__file__).resolve().parents[1] / "docs" / "multi_target.png"
 MIN_POINTS = (2, 3, 4)
 DELETERS = ("steps:2", "steps:3", "steps:5", "cov:20")
 QUICK_SETTINGS = {"GNN": [vs.Setting(3.0, m, d) for m, d in ((2, "steps:3"), (3, "steps:2"), (3, "steps:3"), (4, "steps:3"))],
@@ -239,8 +240,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--variant", action="append", default=[], choices=sorted(set(VARIANTS) - {"default"}),
                         help="also run this setting of ours on the tuning half (repeatable)")
     parser.add_argument("--json", type=Path, help="write the per-grid scores here")
+    parser.add_argument("--plot", type=Path, default=DEFAULT_PLOT, help="PNG of GOSPA per grid (default docs/multi_target.png)")
     parser.add_argument("--ours-only", action="store_true",
                         help="ours (defaults and --variant) on the tuning half only; no Stone Soup")
+    parser.add_argument("--only", choices=sorted(VARIANTS),
+                        help="just this setting of ours on both halves (no Stone Soup, no defaults)")
     args = parser.parse_args(argv)
     if importlib.util.find_spec("stonesoup") is None:
         print("multi_target: Stone Soup is not installed (pip install -e '.[bench]')", file=sys.stderr)
@@ -271,7 +275,7 @@ def main(argv: list[str] | None = None) -> int:
                 say(f"  [{time.perf_counter() - started:6.0f} s] {label}: {k}/{len(jobs)}")
             return out
 
-        jobs = [(name, path, seeds, "default") for name, (half, path) in names.items()
+        jobs = [(name, path, seeds, args.only or "default") for name, (half, path) in names.items()
                 if not args.ours_only or half == "tuning"]
         jobs += [(name, path, seeds, v) for v in args.variant for name, (half, path) in names.items() if half == "tuning"]
         ours: dict[tuple[str, str], list] = {}
@@ -287,6 +291,10 @@ def main(argv: list[str] | None = None) -> int:
         held = [n for n, (h, _) in names.items() if h == "held-out"]
         if args.ours_only:
             print(_ours_table(ours, tuning, ["default", *args.variant], halves))
+            return 0
+        if args.only:
+            for group in (tuning, held):
+                print(_ours_table(ours, group, [args.only], halves))
             return 0
         stone: dict[tuple[str, str, vs.Setting], vs.Score | None] = {}
         best: dict[str, vs.Setting] = {}
@@ -361,17 +369,75 @@ def main(argv: list[str] | None = None) -> int:
                f"{'yes' if mean.switches <= better.switches else 'no'}")
     out.append(f"(total {time.perf_counter() - started:.0f} s)")
     print("\n".join(out), flush=True)
+    record = {
+        "people": {n: _people(n, halves) for n in names},
+        "best": {k: s.text(k) for k, s in best.items()},
+        "ours": {f"{n}/{v}": [s.__dict__ | {"series": None} for s in sc] for (n, v), sc in ours.items()},
+        "stonesoup": {f"{n}/{k}/{s.text(k)}": (None if sc is None else sc.__dict__ | {"series": None})
+                      for (n, k, s), sc in stone.items()}}
     if args.json:
-        args.json.write_text(json.dumps({
-            "ours": {f"{n}/{v}": [s.__dict__ | {"series": None} for s in sc] for (n, v), sc in ours.items()},
-            "stonesoup": {f"{n}/{k}/{s.text(k)}": (None if sc is None else sc.__dict__ | {"series": None})
-                          for (n, k, s), sc in stone.items()}}, default=float, indent=1))
+        args.json.write_text(json.dumps(record, default=float, indent=1))
+    plot(json.loads(json.dumps(record, default=float)), args.plot)
+    print(f"plot: {args.plot}")
     return 0
+
+
+def plot(data: dict, path: Path, extra: dict | None = None) -> None:
+    """Mean GOSPA per grid: ours (mean over sampler seeds, bar from the lowest to the highest
+    seed) beside the tuned GNN and JPDA, tuning half then held-out half. ``data`` is the
+    ``--json`` record; ``extra`` maps a label to another such record's ``ours`` for one
+    more setting of ours."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    grids = sorted({k.split("/")[0] for k in data["ours"]}, key=lambda n: (n[0] != "t", n))
+    fig, ax = plt.subplots(figsize=(10, 4.8))
+    x = np.arange(len(grids))
+    series = [("ours (defaults)", data["ours"], "default", -0.12, "C0")]
+    for k, (label, ours) in enumerate((extra or {}).items()):
+        variant = next(iter(ours)).split("/")[1]
+        series.append((label, ours, variant, 0.12 + 0.08 * k, "C3"))
+    for label, ours, variant, dx, colour in series:
+        g = [[s["gospa"] for s in ours.get(f"{n}/{variant}", [])] for n in grids]
+        mean = np.array([np.mean(v) if v else np.nan for v in g])
+        lo = np.array([min(v) if v else np.nan for v in g])
+        hi = np.array([max(v) if v else np.nan for v in g])
+        ax.errorbar(x + dx, mean, yerr=[mean - lo, hi - mean], fmt="o", color=colour, capsize=3,
+                    label=f"{label}: mean over sampler seeds, bar min-max")
+    for kind, marker, colour in (("GNN", "s", "C1"), ("JPDA", "^", "C2")):
+        by_grid = {}
+        for key, sc in data["stonesoup"].items():
+            n, k, _ = key.split("/", 2)
+            if k == kind and sc is not None:
+                by_grid.setdefault(n, []).append(sc["gospa"])
+        best = data.get("best", {}).get(kind)
+        chosen = [data["stonesoup"].get(f"{n}/{kind}/{best}") for n in grids] if best else []
+        ax.plot(x, [c["gospa"] if c else np.nan for c in chosen], marker, color=colour, ms=7,
+                label=f"{kind}, setting tuned on the tuning half")
+        ax.vlines(x + 0.04, [min(by_grid.get(n, [np.nan])) for n in grids], [max(by_grid.get(n, [np.nan])) for n in grids],
+                  color=colour, alpha=0.35, lw=4 if kind == "GNN" else 2)
+    split = sum(n[0] == "t" for n in grids) - 0.5
+    ax.axvline(split, color="k", lw=1)
+    ax.set_ylim(ax.get_ylim()[0], ax.get_ylim()[1] * 1.12)
+    ax.text(split - 0.1, ax.get_ylim()[1] * 0.8, "tuning half", ha="right", va="top")
+    ax.text(split + 0.1, ax.get_ylim()[1] * 0.8, "held-out half", ha="left", va="top")
+    ax.set_xticks(x, [f"{n}\n{data['people'][n]} p" for n in grids], fontsize=8)
+    ax.set_ylabel("mean GOSPA (c = 10 m, p = 2), m")
+    ax.set_title("Multi-target suite: GOSPA per grid (shaded: Stone Soup over the settings tried on the tuning half)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="x-small", loc="upper left", ncol=2)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def _ours_table(ours: dict, group: list[str], variants: list[str], halves: dict) -> str:
     """Ours with each variant on ``group``: the summary and the per-grid GOSPA (mean over seeds)."""
-    lines = [f"tuning half ({len(group)} grids, {sum(_people(n, halves) for n in group)} people), ours only", HEAD,
+    half = "tuning" if group[0].startswith("t") else "held-out"
+    lines = [f"{half} half ({len(group)} grids, {sum(_people(n, halves) for n in group)} people), ours only", HEAD,
              "-" * len(HEAD)]
     for v in variants:
         mean, per_seed = over_seeds([ours[(n, v)] for n in group])
