@@ -16,10 +16,11 @@ online MCMCDA (``OnlineMCMCDA.step`` and the expected targets handed to the fusi
 per scan over the 20 s around that moment. Printed per grid: the most people present,
 reports per scan, mean and p95 ms per scan of each part and of both, as a fraction of the 0.5 s period (below 1: real
 time on one core). ``--profile`` adds the functions that dominate on the largest grid
-(cProfile, cumulative). Writes a log-log plot (``--plot``, default docs/multi_scale.png).
+(cProfile, by own time; it slows that grid's figures). Writes a log-log plot (``--plot``, default docs/multi_scale.png).
 
-Simulated grids are cached under ``/tmp/bintrack-multi-scale``. About 5–10 min on 2 shared
-cores; ``--quick`` stops at 30 people.
+Simulated grids are cached under ``/tmp/bintrack-multi-scale`` (simulating the 100-person
+grids takes minutes). Tracking took about 20 min wall on 2 cores shared with other work (load
+15–25); ``--quick`` stops at 30 people.
 
 Run: ``nice -n 10 .venv/bin/python benchmarks/multi_scale.py [--quick] [--profile]``
 """
