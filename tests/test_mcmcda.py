@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import math
 
 import numpy as np
@@ -211,6 +213,24 @@ def test_the_posterior_of_the_map_never_falls_below_the_initial_state():
     for s in scans:
         tracker.step(s)
         assert tracker.last_score >= 0.0  # all reports as false alarms scores 0
+
+
+def test_several_chains_keep_the_map_over_all_of_them():
+    # from the same state and stream, the first of several chains is the single chain, so the
+    # MAP kept over all of them scores at least as high; with few iterations the others
+    # sometimes find a better one
+    _, scans = constant_velocity_reports(seed=6, scans=12)
+    gains = []
+    for seed in range(6):
+        one = OnlineMCMCDA(MCMCDAConfig(seed=seed, n_mc=15))
+        for s in scans[:-1]:
+            one.step(s)
+        several = copy.deepcopy(one)
+        several.config = dataclasses.replace(one.config, chains=4)
+        one.step(scans[-1])
+        several.step(scans[-1])
+        gains.append(several.last_score - one.last_score)
+    assert min(gains) >= -1e-9 and max(gains) > 0
 
 
 def test_mcmcda_tracker_on_darpa_grid_1_counts_one_person():

@@ -318,6 +318,42 @@ def test_darpa_grid_layout_dead_nodes_and_crossing_people():
     assert scenario.window[1] >= 90
 
 
+def test_darpa_grid_variations_curving_walks_pairs_stops_and_layout():
+    plain = build_scenario("darpa-grid", 4, people=7)
+    varied = build_scenario("darpa-grid", 4, people=7, walk="curving", crossings=2, pairs=1, stops=2,
+                            dead=12, jitter=0.0, grid=14, entry_gap=6.0)
+    assert len(varied.sensors) == 14 * 14 and len(varied.dead) == 12
+    xs = sorted({s.x for s in varied.sensors})
+    assert xs[:3] == [0.0, 5.0, 10.0]  # no jitter: the grid itself
+    field = 13 * 5.0
+    walks = {w.target: w for w in varied.trajectories}
+    assert np.diff([w.t_entry for w in varied.trajectories[:5]]) == pytest.approx([6] * 4, abs=1.2)
+    # crossings: persons 2-3 and 4-5 meet mid-field at the same instant
+    t = np.linspace(0, varied.window[1], 40001)
+    for a, b in (("2", "3"), ("4", "5")):
+        gap = np.hypot(*(walks[a].position(t) - walks[b].position(t)).T)
+        assert np.nanmin(gap) < 0.05
+    # person 1 curves: its heading wanders around its course, at a constant walking speed
+    headings = [math.atan2(s.vy, s.vx) for s in walks["1"].segments if s.vx or s.vy]
+    assert len(headings) > 10 and np.ptp(np.unwrap(headings)) > 0.2
+    assert all(1.0 <= math.hypot(s.vx, s.vy) <= 1.5 for s in walks["1"].segments if s.vx or s.vy)
+    end = walks["1"].position(walks["1"].t_exit)
+    assert min(end[0], end[1], field - end[0], field - end[1]) == pytest.approx(0, abs=1e-9)
+    # person 7 walks 2-5 m beside person 6, up to 1 s behind
+    lead, side = walks["6"].segments[0], walks["7"].segments[0]
+    assert len(walks["7"].segments) >= len(walks["6"].segments) > 10
+    assert 0 <= side.t0 - lead.t0 <= 1 and (side.vx, side.vy) == (lead.vx, lead.vy)
+    offset = math.hypot(side.x0 - lead.x0, side.y0 - lead.y0)
+    assert 2 <= offset <= 5 and abs((side.x0 - lead.x0) * lead.vx + (side.y0 - lead.y0) * lead.vy) < 1e-9
+    # two people stop for 5-15 s
+    stops = [s.t1 - s.t0 for w in varied.trajectories for s in w.segments if s.vx == 0 and s.vy == 0]
+    assert len(stops) == 2 and all(5 <= d <= 15 for d in stops)
+    # the default options give the default scenario (the shipped datasets stay as they are)
+    assert build_scenario("darpa-grid", 4, people=7, grid=12, jitter=0.5, dead=6, entry_gap=10.0, walk="straight",
+                          crossings=1, pairs=0, stops=0) == plain
+    assert not any(s.vx == 0 and s.vy == 0 for w in plain.trajectories for s in w.segments)
+
+
 def test_laser_testbed():
     scenario = build_scenario("laser-testbed", 1, passes=5)
     result = simulate_scenario(scenario, 1)
@@ -361,6 +397,12 @@ def test_motion_scenarios():
     (dict(name="sector-300", faults="wrong"), "--faults does not apply"),
     (dict(name="darpa-grid", people=0), "--people must be at least 1"),
     (dict(name="darpa-grid", duration=30.0), "ends before the last person leaves"),
+    (dict(name="darpa-grid", walk="zigzag"), "--walk must be one of"),
+    (dict(name="darpa-grid", people=3, crossings=2), "--crossings must be within 0..1"),
+    (dict(name="darpa-grid", people=4, pairs=1), "would include crossing ones"),
+    (dict(name="darpa-grid", people=2, stops=3), "--stops must be within 0..2"),
+    (dict(name="darpa-grid", grid=1), "--grid must be within"),
+    (dict(name="darpa-grid", jitter=3.0), "--jitter must be within"),
     (dict(name="laser-testbed", passes=1), "--passes must be at least 2"),
     (dict(name="motion", trajectory="circular"), "--trajectory must be one of constant, random-walk"),
     (dict(name="nowhere"), "unknown scenario"),

@@ -33,6 +33,14 @@ OPTIONS = (
     ("pfa", float, "P", "false-alarm probability per sample (needs --period)"),
     ("clock_offset", float, "S", "per-node clock offsets drawn in ±S seconds"),
     ("clock_skew", float, "X", "per-node clock skews drawn in ±X"),
+    ("grid", int, "N", "nodes per side of the grid (darpa-grid, default 12)"),
+    ("jitter", float, "M", "node position jitter, ± m in x and y (darpa-grid, default 0.5)"),
+    ("dead", int, "N", "dead nodes (darpa-grid, default 6)"),
+    ("entry_gap", float, "S", "seconds between people's entries (darpa-grid, default 10)"),
+    ("walk", str, "KIND", "straight|curving: curving walks' heading is a mean-reverting random walk (darpa-grid)"),
+    ("crossings", int, "N", "pairs of people who cross mid-field (darpa-grid, default 1)"),
+    ("pairs", int, "N", "side-by-side pairs: the last people walk 2-5 m beside the one before (darpa-grid)"),
+    ("stops", int, "N", "people who stop for 5-15 s on their way (darpa-grid)"),
 )
 
 # Above this many sensors the command shows its progress on stderr.

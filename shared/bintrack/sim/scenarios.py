@@ -166,50 +166,101 @@ GRID_FIELD = Region(xmin=0, ymin=0, xmax=(GRID_SIZE - 1) * GRID_SPACING, ymax=(G
 WALKING_SPEEDS = (1.0, 1.5)
 
 
-def _people(rng: np.random.Generator, people: int) -> list[Trajectory]:
-    """People entering about 10 s apart (person k at 10·k ± 1 s) and walking straight across the
-    grid at 1–1.5 m/s; the last two of the first three cross each other mid-field."""
-    entries = [10.0 * k + rng.uniform(-1.0, 1.0) for k in range(1, people + 1)]
+WALKS = ("straight", "curving")
+
+
+def _crossing_pairs(people: int) -> list[tuple[int, int]]:
+    """The persons who may cross mid-field, in order: (1, 2) or (2, 3), then (4, 5), (6, 7), …."""
+    if people < 2:
+        return []
+    return [(1, 2) if people == 2 else (2, 3)] + [(k, k + 1) for k in range(4, people, 2)]
+
+
+def _people(rng: np.random.Generator, extra: np.random.Generator, people: int, field: Region, entry_gap: float,
+            walk: str, crossings: int, pairs: int, stops: int) -> list[Trajectory]:
+    """People entering ``entry_gap`` s apart (person k at gap·k ± gap/10 s) and walking across
+    the field at 1–1.5 m/s.
+
+    ``crossings`` pairs cross each other mid-field: with the default one, the last two of the
+    first three (persons 1 and 2 when there are two); further crossings are persons (4, 5),
+    (6, 7), …. ``walk="curving"`` bends every walk that is not a crossing: its heading is a mean-reverting random
+    walk around its straight course (:func:`trajectories.curve_walk`). ``pairs`` side-by-side
+    pairs: the last people walk 2–5 m beside the person before them. ``stops`` people (drawn
+    at random) stop for 5–15 s somewhere along their walk. Every draw beyond the default
+    scenario's comes from ``extra``, so the defaults give the same people as before."""
+    entries = [entry_gap * k + rng.uniform(-1.0, 1.0) * (entry_gap / 10.0) for k in range(1, people + 1)]
     walks: dict[int, Trajectory] = {}
-    if people >= 2:
-        a, b = (1, 2) if people == 2 else (2, 3)
-        walks[a], walks[b] = trajectories.crossing_walks(rng, GRID_FIELD, (entries[a - 1], entries[b - 1]),
+    for a, b in _crossing_pairs(people)[:crossings]:
+        walks[a], walks[b] = trajectories.crossing_walks(rng, field, (entries[a - 1], entries[b - 1]),
                                                          (str(a), str(b)), WALKING_SPEEDS)
     for k in range(1, people + 1):
         if k not in walks:
-            walks[k] = trajectories.walk_across(rng, GRID_FIELD, rng.uniform(*WALKING_SPEEDS), entries[k - 1], str(k))
+            walks[k] = trajectories.walk_across(rng, field, rng.uniform(*WALKING_SPEEDS), entries[k - 1], str(k))
+    if walk == "curving":
+        for k in range(1, people + 1):
+            if any(k in c for c in _crossing_pairs(people)[:crossings]):
+                continue
+            walks[k] = trajectories.curve_walk(extra, field, walks[k])
+    for j in range(pairs):
+        leader, follower = people - 2 * j - 1, people - 2 * j
+        walks[follower] = trajectories.beside(extra, walks[leader], str(follower), (2.0, 5.0))
+    for k in extra.choice(np.arange(1, people + 1), size=stops, replace=False) if stops else []:
+        walks[int(k)] = trajectories.with_stop(extra, walks[int(k)], (5.0, 15.0))
     return [walks[k] for k in range(1, people + 1)]
 
 
 def darpa_grid(seed: int = 0, *, people: int = 3, sensing_range: float = 8.0, pd: float = 0.7, pfa: float = 0.05,
-               period: float = 0.5, duration: float | None = None) -> Scenario:
+               period: float = 0.5, duration: float | None = None, grid: int = GRID_SIZE,
+               jitter: float = GRID_JITTER, dead: int = GRID_DEAD, entry_gap: float = 10.0,
+               walk: str = "straight", crossings: int = 1, pairs: int = 0, stops: int = 0) -> Scenario:
     """Paper 004 §V (DARPA NEST 2005): 144 PIR nodes in a 12×12 grid at ≈5 m spacing (jitter
     ±0.5 m), 6 of them dead (listed, never report), range 8 m, pd 0.7, pfa 0.05 per sample,
     sampling every 0.5 s at random phases; ``people`` walk across at 1–1.5 m/s entering about
     10 s apart. The field is observed from 0 s for at least 90 s and until 5 s after the last
-    person leaves, with false alarms throughout."""
+    person leaves, with false alarms throughout.
+
+    Variations (defaults give the scenario above): ``grid`` nodes per side, ``jitter`` (m),
+    ``dead`` nodes, ``entry_gap`` (s between entries), ``walk`` straight|curving, ``crossings``
+    (pairs of people crossing mid-field), ``pairs`` (side-by-side pairs), ``stops`` (people
+    who stop for a while); see :func:`_people`."""
     _check(people >= 1, f"--people must be at least 1, got {people}")
     _check(math.isfinite(sensing_range) and sensing_range > 0, f"--range must be positive, got {sensing_range}")
     _positive("period", period)
     _positive("duration", duration)
+    _positive("entry_gap", entry_gap)
     _probability("pd", pd)
     _probability("pfa", pfa)
-    layout, paths, phases = _streams(seed, 3)
-    positions = deployments.grid_positions(layout, GRID_SIZE, GRID_SIZE, GRID_SPACING, GRID_JITTER)
+    _check(2 <= grid <= 200, f"--grid must be within 2..200 nodes per side, got {grid}")
+    _check(math.isfinite(jitter) and 0 <= jitter < GRID_SPACING / 2, f"--jitter must be within [0, {GRID_SPACING / 2:g}) m, got {jitter}")
+    _check(0 <= dead <= grid * grid, f"--dead must be within 0..{grid * grid}, got {dead}")
+    _choice("walk", walk, WALKS)
+    possible = _crossing_pairs(people)
+    _check(0 <= crossings <= max(1, len(possible)),
+           f"--crossings must be within 0..{len(possible)} with {people} people (persons 2–3, 4–5, … cross)")
+    crossers = {k for pair in possible[:crossings] for k in pair}
+    _check(pairs >= 0 and not crossers & set(range(people - 2 * pairs + 1, people + 1)) and 2 * pairs <= people,
+           f"--pairs {pairs}: the last {2 * pairs} people would include crossing ones; lower --pairs or --crossings")
+    _check(0 <= stops <= people, f"--stops must be within 0..{people}, got {stops}")
+    layout, paths, phases, extra = _streams(seed, 4)
+    field = Region(xmin=0, ymin=0, xmax=(grid - 1) * GRID_SPACING, ymax=(grid - 1) * GRID_SPACING)
+    positions = deployments.grid_positions(layout, grid, grid, GRID_SPACING, jitter)
     sensors = deployments.disks_at(positions, sensing_range, period=period, pd=pd, pfa=pfa)
-    dead = deployments.dead_nodes(layout, [s.id for s in sensors], GRID_DEAD)
-    walkers = _people(paths, people)
+    dead_ids = deployments.dead_nodes(layout, [s.id for s in sensors], dead)
+    try:
+        walkers = _people(paths, extra, people, field, entry_gap, walk, crossings, pairs, stops)
+    except ValueError as exc:
+        raise ScenarioError(f"{exc}; lower --entry-gap or --crossings") from None
     last_exit = max(w.t_exit for w in walkers)
     if duration is None:
         duration = max(90.0, math.ceil(last_exit + 5.0))
     _check(duration >= last_exit, f"--duration {duration:g} s ends before the last person leaves at {last_exit:.1f} s")
     sampling = dict(zip((s.id for s in sensors), np.round(phases.uniform(0, period, len(sensors)), 6).tolist()))
     margin = GRID_SPACING
-    region = Region(xmin=GRID_FIELD.xmin - margin, ymin=GRID_FIELD.ymin - margin,
-                    xmax=GRID_FIELD.xmax + margin, ymax=GRID_FIELD.ymax + margin)
+    region = Region(xmin=field.xmin - margin, ymin=field.ymin - margin,
+                    xmax=field.xmax + margin, ymax=field.ymax + margin)
     deployment = Deployment(name="darpa-grid", units="m", region=region, sensors=sensors)
     return Scenario("darpa-grid", deployment, tuple(sensors), tuple(walkers), (0.0, float(duration)),
-                    phases=sampling, dead=dead)
+                    phases=sampling, dead=dead_ids)
 
 
 # --------------------------------------------------------------------------- paper 003

@@ -415,3 +415,69 @@ def crossing_walks(rng: np.random.Generator, box: Region, entries: tuple[float, 
         end = centre + ahead * np.array(direction)
         walks.append(polyline(target, t0, [starts[choice], end], speed))
     return walks[0], walks[1]
+
+
+def curve_walk(rng: np.random.Generator, box: Region, course: Trajectory, step: float = 1.0,
+               spread: float = 0.35, reversion: float = 5.0) -> Trajectory:
+    """The walk ``course`` (a straight walk across ``box``) bent: same entry point, entry time and
+    speed, but its heading is a mean-reverting random walk around the course's heading (an
+    Ornstein–Uhlenbeck process of stationary spread ``spread`` rad and time constant
+    ``reversion`` s, changed every ``step`` s). It ends where it first leaves ``box``, which
+    may be on a side other than the course's."""
+    start, end = course.position(course.t_entry), course.position(course.t_exit)
+    speed = float(np.hypot(*course.velocity(course.t_entry)))
+    heading = math.atan2(end[1] - start[1], end[0] - start[0])
+    keep = math.exp(-step / reversion)
+    kick = spread * math.sqrt(1.0 - keep * keep)
+    x, y = float(start[0]), float(start[1])
+    deviation = 0.0
+    points = [(x, y)]
+    for _ in range(100_000):
+        h = heading + deviation
+        direction = (math.cos(h), math.sin(h))
+        room = geometry.box_exit_distance((x, y), direction, box.xmin, box.ymin, box.xmax, box.ymax)
+        length = max(0.0, min(speed * step, room))
+        x, y = x + length * direction[0], y + length * direction[1]
+        points.append((x, y))
+        if length < speed * step:
+            break
+        deviation = keep * deviation + kick * rng.standard_normal()
+    return polyline(course.target, course.t_entry, points, speed)
+
+
+def beside(rng: np.random.Generator, leader: Trajectory, target: str, offset: tuple[float, float],
+           lag: float = 1.0) -> Trajectory:
+    """A person walking beside ``leader`` (straight or piecewise linear): the leader's path moved
+    sideways by U[offset] units (to a random side, perpendicular to the leader's first heading)
+    and U[0, lag] s later."""
+    vx, vy = leader.velocity(leader.t_entry)
+    h = math.atan2(vy, vx)
+    d = rng.uniform(*offset) * (1.0 if rng.integers(2) else -1.0)
+    dx, dy, dt = -d * math.sin(h), d * math.cos(h), rng.uniform(0.0, lag)
+    return Trajectory(target, tuple(LinearSegment(s.t0 + dt, s.t1 + dt, s.x0 + dx, s.y0 + dy, s.vx, s.vy)
+                                    for s in _linear(leader)))
+
+
+def with_stop(rng: np.random.Generator, walk: Trajectory, pause: tuple[float, float]) -> Trajectory:
+    """``walk`` with a stop of U[pause] s at a time U[0.3, 0.7] of the way through it; the rest of
+    the walk is delayed by the stop."""
+    t_stop = walk.t_entry + rng.uniform(0.3, 0.7) * (walk.t_exit - walk.t_entry)
+    wait = rng.uniform(*pause)
+    segments: list[LinearSegment] = []
+    for s in _linear(walk):
+        if s.t1 <= t_stop:
+            segments.append(s)
+        elif s.t0 >= t_stop:
+            segments.append(LinearSegment(s.t0 + wait, s.t1 + wait, s.x0, s.y0, s.vx, s.vy))
+        else:
+            x, y = s.x0 + s.vx * (t_stop - s.t0), s.y0 + s.vy * (t_stop - s.t0)
+            segments += [LinearSegment(s.t0, t_stop, s.x0, s.y0, s.vx, s.vy),
+                         LinearSegment(t_stop, t_stop + wait, x, y, 0.0, 0.0),
+                         LinearSegment(t_stop + wait, s.t1 + wait, x, y, s.vx, s.vy)]
+    return Trajectory(walk.target, tuple(segments))
+
+
+def _linear(walk: Trajectory) -> tuple[LinearSegment, ...]:
+    if not all(isinstance(s, LinearSegment) for s in walk.segments):
+        raise ValueError("only piecewise-linear walks can be moved or stopped")
+    return walk.segments

@@ -74,7 +74,9 @@ class MCMCDAConfig:
     window: int = 5
     """sliding-window length, scans"""
     n_mc: int = 500
-    """Metropolis–Hastings iterations per scan"""
+    """Metropolis–Hastings iterations per scan and chain"""
+    chains: int = 1
+    """chains per scan, each of n_mc iterations from the previous MAP; the MAP over them is kept"""
     seed: int = 0
     """seed of the sampler's random stream"""
     process_noise: float = 0.1
@@ -119,7 +121,7 @@ class MCMCDAConfig:
                        false_alarm_rate=self.false_alarm_rate / (k * k), birth_rate=self.birth_rate / (k * k))
 
     def __post_init__(self):
-        checks = [("window", self.window >= 2), ("n_mc", self.n_mc >= 1), ("max_misses", self.max_misses >= 0),
+        checks = [("window", self.window >= 2), ("n_mc", self.n_mc >= 1), ("chains", self.chains >= 1), ("max_misses", self.max_misses >= 0),
                   ("pd", 0 < self.pd < 1), ("termination", 0 < self.termination < 1), ("stop", 0 < self.stop < 1),
                   ("false_alarm_rate", self.false_alarm_rate > 0), ("birth_rate", self.birth_rate > 0),
                   ("max_speed", self.max_speed > 0), ("initial_speed", self.initial_speed > 0),
@@ -406,33 +408,38 @@ class OnlineMCMCDA:
     # ------------------------------------------------------------------ chain
 
     def _run_chain(self) -> None:
+        """``chains`` Metropolis–Hastings chains of n_mc iterations, each from the previous MAP
+        (Algorithm 1 of Oh et al.), one after the other on the sampler's stream; the MAP over
+        all of them is kept."""
         self._cache: dict = {}
-        tracks = [_Track(t.reports, t.anchor, t.label) for t in self._tracks]
-        used = {r for t in tracks for r in t.reports}
-        free = {rid for _, _, ids in self._scans for rid in ids} - used
-        score = sum(self._score(t) for t in tracks)
-        best, best_score = [_Track(t.reports, t.anchor, t.label) for t in tracks], score
+        start = [_Track(t.reports, t.anchor, t.label) for t in self._tracks]
+        best, best_score = start, sum(self._score(t) for t in start)
         moves = (self._birth, self._death, self._split, self._merge, self._extension, self._reduction,
                  self._update, self._switch)
-        for _ in range(self.config.n_mc):
-            move = self._birth if not tracks else moves[self._rng.randrange(8)]
-            proposal = move(tracks, free)
-            if proposal is None:
-                continue
-            removed, added, log_ratio = proposal
-            delta = sum(self._score(t) for t in added) - sum(self._score(tracks[i]) for i in removed)
-            log_a = delta + log_ratio
-            if log_a >= 0 or self._rng.random() < math.exp(log_a):
-                for i in sorted(removed, reverse=True):
-                    free.update(tracks[i].reports)
-                    del tracks[i]
-                for t in added:
-                    free.difference_update(t.reports)
-                    tracks.append(t)
-                score += delta
-                if score > best_score + 1e-12:
-                    best = [_Track(t.reports, t.anchor, t.label) for t in tracks]
-                    best_score = score
+        for _ in range(self.config.chains):
+            tracks = [_Track(t.reports, t.anchor, t.label) for t in start]
+            used = {r for t in tracks for r in t.reports}
+            free = {rid for _, _, ids in self._scans for rid in ids} - used
+            score = sum(self._score(t) for t in tracks)
+            for _ in range(self.config.n_mc):
+                move = self._birth if not tracks else moves[self._rng.randrange(8)]
+                proposal = move(tracks, free)
+                if proposal is None:
+                    continue
+                removed, added, log_ratio = proposal
+                delta = sum(self._score(t) for t in added) - sum(self._score(tracks[i]) for i in removed)
+                log_a = delta + log_ratio
+                if log_a >= 0 or self._rng.random() < math.exp(log_a):
+                    for i in sorted(removed, reverse=True):
+                        free.update(tracks[i].reports)
+                        del tracks[i]
+                    for t in added:
+                        free.difference_update(t.reports)
+                        tracks.append(t)
+                    score += delta
+                    if score > best_score + 1e-12:
+                        best = [_Track(t.reports, t.anchor, t.label) for t in tracks]
+                        best_score = score
         self._tracks = best
         self.last_score = best_score
 

@@ -1,0 +1,478 @@
+"""Multi-target tracking on a family of simulated grids: our MCMCDA against tuned Stone Soup.
+
+Issue 21. The suite is ``bintrack simulate darpa-grid`` with its settings varied per grid
+(drawn once from a fixed seed, printed at the start):
+
+* 2–10 people entering 4–8 s apart (``--people``, ``--entry-gap``);
+* per-sample pd 0.6–0.9 and pfa 0.02–0.1 (``--pd``, ``--pfa``);
+* walks straight or curving — heading a mean-reverting random walk around the course, 3 in 4
+  grids (``--walk curving``);
+* 1 to all possible crossing pairs (``--crossings``), 0–1 side-by-side pairs 2–5 m apart
+  (``--pairs``), 0–2 people who stop for 5–15 s (``--stops``);
+* 0–12 dead nodes (``--dead``), node jitter ±0–1 m (``--jitter``);
+* the 12 × 12 grid at 5 m, 8 m range, 0.5 s period of paper 004.
+
+It is split into a **tuning half** and a **held-out half** (fixed, different simulation seeds,
+the same mix of settings). On each grid:
+
+* ours (``bintrack track DIR --tracker mcmcda``: grid fusion + online MCMCDA, its defaults)
+  runs with sampler seeds 0..S−1 (``--mcmc-seeds``);
+* Stone Soup GNN and JPDA (``benchmarks/mcmcda_vs_stonesoup.py``: same fused reports without
+  track aid, same constant-velocity model) run on the tuning half over a small grid of their
+  settings — initiator min_points 2–4 × deleter (2, 3, 5 missed scans or covariance trace
+  > 20 m²) at the first gate, then the other gate at the best — and the setting with the lowest
+  mean GOSPA over the tuning half is scored on the held-out half.
+
+Our defaults are chosen on the tuning half only (``--variant`` runs other settings of ours on
+it). Scores as ``bintrack eval`` (``bintrack.evaluation.metrics.multi_target_scores``) at every scan from
+the first entry to the last exit: GOSPA (c = 10 m, p = 2, α = 2) and its parts (m²), mean
+|tracks − people|, identity switches (CLEAR MOT mismatches) summed over the half, and ms per
+scan (ours: fusion + MCMCDA, and MCMCDA alone; Stone Soup: its tracking step). The seed
+spread of ours (its mean GOSPA over the half for each sampler seed) is printed beside the
+spread of GNN's over its settings on the tuning half.
+
+Simulated grids are cached under ``/tmp/bintrack-multi-target`` (``--cache``). Needs the
+``bench`` extra (Stone Soup); exits 2 without it. Default run (8 + 8 grids, 3 sampler seeds,
+2 worker processes): 62 min wall on 2 cores shared with other work (load 15–25), most of it
+Stone Soup's 13 + 13 settings on the tuning half; ``--quick`` (3 + 3 grids, 2 seeds, 4 Stone
+Soup settings per associator) is a few minutes. A Stone Soup setting is abandoned past 60 s
+of wall time on one grid, so under heavy load fewer JPDA settings are ranked. Progress on
+stderr, results on stdout.
+
+Run: ``nice -n 10 .venv/bin/python benchmarks/multi_target.py [--quick] [--jobs 2]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import itertools
+import json
+import math
+import multiprocessing
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import mcmcda_vs_stonesoup as vs  # noqa: E402  (Stone Soup wiring and scoring shared with issue 6's benchmark)
+
+SUITE_SEED = 2026
+PEOPLE = (2, 3, 4, 5, 6, 7, 8, 10)
+HALVES = {"tuning": 1000, "held-out": 2000}  # simulation seeds start here
+DEFAULT_CACHE = Path("/tmp/bintrack-multi-target")
+DEFAULT_PLOT = Path(__file__).resolve().parents[1] / "docs" / "multi_target.png"
+MIN_POINTS = (2, 3, 4)
+DELETERS = ("steps:2", "steps:3", "steps:5", "cov:20")
+QUICK_SETTINGS = {"GNN": [vs.Setting(3.0, m, d) for m, d in ((2, "steps:3"), (3, "steps:2"), (3, "steps:3"), (4, "steps:3"))],
+                  "JPDA": [vs.Setting(0.99, m, d) for m, d in ((2, "steps:3"), (3, "steps:2"), (3, "steps:3"), (4, "steps:3"))]}
+say = vs.say
+
+
+# --------------------------------------------------------------------------- the suite
+
+
+def suite(per_half: int) -> dict[str, list[dict]]:
+    """The grids' ``bintrack simulate darpa-grid`` options per half, drawn from SUITE_SEED.
+    Both halves get the same people counts (shuffled); every other setting is drawn per grid."""
+    from bintrack.sim.scenarios import ScenarioError, build_scenario
+
+    rng = np.random.default_rng(SUITE_SEED)
+    halves = {}
+    for half, base in HALVES.items():
+        counts = [PEOPLE[k % len(PEOPLE)] for k in range(per_half)]
+        grids = []
+        for i, people in enumerate(rng.permutation(counts)):
+            people = int(people)
+            spec = dict(seed=base + i, people=people, pd=round(float(rng.uniform(0.6, 0.9)), 2),
+                        pfa=round(float(rng.uniform(0.02, 0.1)), 3),
+                        walk="curving" if rng.random() < 0.75 else "straight",
+                        entry_gap=round(float(rng.uniform(4.0, 8.0)), 1),
+                        dead=int(rng.integers(0, 13)), jitter=round(float(rng.uniform(0.0, 1.0)), 2),
+                        stops=int(rng.integers(0, min(2, people) + 1)))
+            most = 1 if people < 4 else 1 + len(range(4, people, 2))
+            spec["crossings"] = int(rng.integers(1, most + 1))
+            spec["pairs"] = int(people >= 4 and rng.random() < 0.5)
+            while True:  # fewer crossings (then pairs) until the people suffice
+                try:
+                    build_scenario("darpa-grid", spec["seed"], **{k: v for k, v in spec.items() if k != "seed"})
+                    break
+                except (ScenarioError, ValueError):
+                    if spec["crossings"] > 1:
+                        spec["crossings"] -= 1
+                    else:
+                        spec["pairs"] -= 1
+            grids.append(spec)
+        halves[half] = grids
+    return halves
+
+
+def command(spec: dict) -> str:
+    flags = " ".join(f"--{k.replace('_', '-')} {v}" for k, v in spec.items())
+    return f"bintrack simulate darpa-grid {flags}"
+
+
+def dataset(spec: dict, cache: Path) -> Path:
+    """The grid's dataset folder under ``cache``, simulated on first use."""
+    from bintrack.formats import write_dataset
+    from bintrack.sim import simulate
+
+    folder = cache / "-".join(f"{k}{v}" for k, v in spec.items())
+    if not (folder / "truth.csv").exists():
+        sim = simulate("darpa-grid", spec["seed"], **{k: v for k, v in spec.items() if k != "seed"})
+        tmp = folder.with_name(folder.name + ".part")
+        write_dataset(tmp, sim.deployment, sim.events, sim.truth)
+        tmp.rename(folder)
+    return folder
+
+
+# --------------------------------------------------------------------------- ours
+
+
+VARIANTS: dict[str, dict] = {
+    "default": {},
+    "chains4": {"mcmcda": {"chains": 4}},
+    "nmc2000": {"mcmcda": {"n_mc": 2000}},
+    "min3": {"mcmcda": {"min_reports": 3}},
+    "coast2": {"mcmcda": {"coast": 2}},
+    "window8": {"mcmcda": {"window": 8}},
+}
+
+
+def tracker_for(deployment, variant: str, seed: int):
+    from bintrack.trackers.multi.fusion import FusionConfig
+    from bintrack.trackers.multi.mcmcda import MCMCDAConfig
+    from bintrack.trackers.multi.tracker import MCMCDATracker
+
+    options = VARIANTS[variant]
+    fusion = FusionConfig(**options.get("fusion", {}))
+    config = MCMCDAConfig(**{**options.get("mcmcda", {}), "seed": seed})
+    return MCMCDATracker(deployment, fusion, config)
+
+
+def run_ours(args) -> tuple:
+    """One grid: ours with each sampler seed (scores, fusion + MCMCDA ms/scan), and the grid's
+    Case with the reports of the fusion without track aid (Stone Soup's input)."""
+    name, path, seeds, variant = args
+    from bintrack.formats import open_dataset
+    from bintrack.trackers.multi.fusion import FusionConfig
+    from bintrack.messages import PositionReports, TrackSet
+    from bintrack.pipeline import run_tracker
+    from bintrack.trackers.multi.tracker import MCMCDATracker
+
+    case = vs.load_case(name, path)
+    data = open_dataset(path)
+    scores = []
+    for seed in seeds:
+        tracker = tracker_for(data.deployment, variant, seed)
+        tracks, reports, mcmcda_s = {}, [], 0.0
+        start = time.perf_counter()
+        for out in run_tracker(data, tracker):
+            if isinstance(out, PositionReports):
+                reports.append(out)
+            elif isinstance(out, TrackSet):
+                tracks[out.t] = [(k.track, k.x, k.y) for k in out.tracks]
+        whole = time.perf_counter() - start
+        case.reports = reports
+        case.config = tracker.mcmcda.config
+        scores.append(vs.score(tracks, case, [whole / max(len(reports), 1)]))
+    if variant == "default":
+        plain = MCMCDATracker(data.deployment, FusionConfig(track_aided=False))
+        case.plain_reports = [out for out in run_tracker(data, plain) if isinstance(out, PositionReports)]
+    return name, scores, case
+
+
+def run_stonesoup(args) -> tuple:
+    name, case, kind, setting = args
+    result = vs.run_stonesoup(case, kind, setting, case.config)
+    if result is None:
+        return name, kind, setting, None
+    return name, kind, setting, vs.score(result.tracks, case, result.step_s)
+
+
+# --------------------------------------------------------------------------- summaries
+
+
+@dataclass
+class Summary:
+    gospa: float
+    localisation: float
+    missed: float
+    false: float
+    count_error: float
+    switches: float      # summed over the half's grids
+    ms_per_scan: float
+
+
+def summarise(scores: list[vs.Score]) -> Summary:
+    """Means over grids (switches summed)."""
+    return Summary(*(float(np.mean([getattr(s, f) for s in scores]))
+                     for f in ("gospa", "localisation", "missed", "false", "count_error")),
+                   float(sum(s.switches for s in scores)), float(np.mean([s.ms_per_scan for s in scores])))
+
+
+def over_seeds(per_grid: list[list[vs.Score]]) -> tuple[Summary, list[Summary]]:
+    """Ours over a half: the mean over sampler seeds of each figure, and each seed's summary."""
+    per_seed = [summarise([grid[k] for grid in per_grid]) for k in range(len(per_grid[0]))]
+    mean = Summary(*(float(np.mean([getattr(s, f) for s in per_seed])) for f in Summary.__dataclass_fields__))
+    return mean, per_seed
+
+
+def row(label: str, s: Summary, extra: str = "") -> str:
+    return (f"{label:<26} {s.gospa:7.2f} {s.localisation:7.2f} {s.missed:7.2f} {s.false:7.2f} "
+            f"{s.count_error:9.2f} {s.switches:8.1f} {s.ms_per_scan:8.2f}  {extra}")
+
+
+HEAD = (f"{'tracker':<26} {'GOSPA':>7} {'loc':>7} {'missed':>7} {'false':>7} {'|n err|':>9} "
+        f"{'ID sw':>8} {'ms/scan':>8}")
+
+
+# --------------------------------------------------------------------------- main
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="3 + 3 grids, 2 sampler seeds, 4 Stone Soup settings each")
+    parser.add_argument("--grids", type=int, help="grids per half (default 8; --quick 3)")
+    parser.add_argument("--mcmc-seeds", type=int, help="sampler seeds of ours (default 3; --quick 2)")
+    parser.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help=f"simulated grids (default {DEFAULT_CACHE})")
+    parser.add_argument("--variant", action="append", default=[], choices=sorted(set(VARIANTS) - {"default"}),
+                        help="also run this setting of ours on the tuning half (repeatable)")
+    parser.add_argument("--json", type=Path, help="write the per-grid scores here")
+    parser.add_argument("--plot", type=Path, default=DEFAULT_PLOT, help="PNG of GOSPA per grid (default docs/multi_target.png)")
+    parser.add_argument("--ours-only", action="store_true",
+                        help="ours (defaults and --variant) on the tuning half only; no Stone Soup")
+    parser.add_argument("--only", choices=sorted(VARIANTS),
+                        help="just this setting of ours on both halves (no Stone Soup, no defaults)")
+    args = parser.parse_args(argv)
+    if importlib.util.find_spec("stonesoup") is None:
+        print("multi_target: Stone Soup is not installed (pip install -e '.[bench]')", file=sys.stderr)
+        return 2
+    per_half = args.grids or (3 if args.quick else 8)
+    seeds = list(range(args.mcmc_seeds or (2 if args.quick else 3)))
+    args.cache.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+
+    halves = suite(per_half)
+    print(f"Suite (seed {SUITE_SEED}): {per_half} grids per half, 12 x 12 nodes at 5 m, range 8 m, period 0.5 s; "
+          f"ours with sampler seeds {seeds[0]}..{seeds[-1]}.")
+    names = {}
+    for half, grids in halves.items():
+        print(f"  {half}:")
+        for spec in grids:
+            name = f"{half[0]}{spec['seed']}"
+            names[name] = (half, dataset(spec, args.cache))
+            print(f"    {name}: {command(spec)}")
+    print(flush=True)
+
+    ctx = multiprocessing.get_context("fork")
+    with ctx.Pool(args.jobs) as pool:
+        def progress(label, jobs, fn):
+            out = []
+            for k, result in enumerate(pool.imap_unordered(fn, jobs), 1):
+                out.append(result)
+                say(f"  [{time.perf_counter() - started:6.0f} s] {label}: {k}/{len(jobs)}")
+            return out
+
+        jobs = [(name, path, seeds, args.only or "default") for name, (half, path) in names.items()
+                if not args.ours_only or half == "tuning"]
+        jobs += [(name, path, seeds, v) for v in args.variant for name, (half, path) in names.items() if half == "tuning"]
+        ours: dict[tuple[str, str], list] = {}
+        cases = {}
+        # imap_unordered loses the job's order: carry (grid, variant) through
+        tagged = [((name, variant), path, s, variant) for name, path, s, variant in jobs]
+        for (key, scores, case) in progress("ours", tagged, _run_tagged):
+            ours[key] = scores
+            if key[1] == "default":
+                cases[key[0]] = case
+
+        tuning = [n for n, (h, _) in names.items() if h == "tuning"]
+        held = [n for n, (h, _) in names.items() if h == "held-out"]
+        if args.ours_only:
+            print(_ours_table(ours, tuning, ["default", *args.variant], halves))
+            return 0
+        if args.only:
+            for group in (tuning, held):
+                print(_ours_table(ours, group, [args.only], halves))
+            return 0
+        stone: dict[tuple[str, str, vs.Setting], vs.Score | None] = {}
+        best: dict[str, vs.Setting] = {}
+        for kind in ("GNN", "JPDA"):
+            settings = (QUICK_SETTINGS[kind] if args.quick else
+                        [vs.Setting(vs.GATES[kind][0], m, d) for m, d in itertools.product(MIN_POINTS, DELETERS)])
+            stage = [(n, cases[n], kind, s) for s in settings for n in tuning]
+            for n, k, s, sc in progress(f"Stone Soup {kind} on the tuning half", stage, run_stonesoup):
+                stone[(n, k, s)] = sc
+            ranked = _rank(stone, kind, settings, tuning)
+            if not args.quick and ranked:
+                first = ranked[0][1]
+                others = [replace(first, gate=g) for g in vs.GATES[kind][1:]]
+                stage = [(n, cases[n], kind, s) for s in others for n in tuning]
+                for n, k, s, sc in progress(f"Stone Soup {kind}, other gate", stage, run_stonesoup):
+                    stone[(n, k, s)] = sc
+                settings = settings + others
+                ranked = _rank(stone, kind, settings, tuning)
+            if not ranked:
+                print(f"multi_target: every Stone Soup {kind} setting ran over its time budget", file=sys.stderr)
+                return 1
+            best[kind] = ranked[0][1]
+            stage = [(n, cases[n], kind, best[kind]) for n in held]
+            for n, k, s, sc in progress(f"Stone Soup {kind} on the held-out half", stage, run_stonesoup):
+                stone[(n, k, s)] = sc
+
+    # ------------------------------------------------------------------ report
+    out = []
+    for half, group in (("tuning", tuning), ("held-out", held)):
+        out.append(f"{half} half ({len(group)} grids, {sum(_people(n, halves) for n in group)} people): "
+                   f"GOSPA c = 10 m, p = 2, alpha = 2 (m; parts in m²); |n err| mean |tracks - people|; ID switches summed")
+        out.append(HEAD)
+        out.append("-" * len(HEAD))
+        mean, per_seed = over_seeds([ours[(n, "default")] for n in group])
+        g = [s.gospa for s in per_seed]
+        out.append(row("ours (defaults)", mean, f"seeds: GOSPA {min(g):.2f}-{max(g):.2f}, switches "
+                                                f"{min(s.switches for s in per_seed):.0f}-{max(s.switches for s in per_seed):.0f}"))
+        if half == "tuning":
+            for v in args.variant:
+                vm, vseeds = over_seeds([ours[(n, v)] for n in group])
+                vg = [s.gospa for s in vseeds]
+                out.append(row(f"ours ({v})", vm, f"seeds: GOSPA {min(vg):.2f}-{max(vg):.2f}"))
+        for kind in ("GNN", "JPDA"):
+            scores = [stone.get((n, kind, best[kind])) for n in group]
+            if any(s is None for s in scores):
+                out.append(f"{kind}: abandoned on some grid (over {vs.SETTING_BUDGET:g} s)")
+                continue
+            out.append(row(f"{kind} (tuned)", summarise(scores)))
+        out.append("")
+    for kind in ("GNN", "JPDA"):
+        out.append(f"Stone Soup {kind} chosen on the tuning half: {best[kind].text(kind)}")
+    ranked = _rank(stone, "GNN", sorted({s for (_, k, s) in stone if k == "GNN"}, key=str), tuning)
+    gnn = [m for m, _ in ranked]
+    _, tune_seeds = over_seeds([ours[(n, "default")] for n in tuning])
+    _, held_seeds = over_seeds([ours[(n, "default")] for n in held])
+    spread = lambda xs: f"{np.mean(xs):.2f} (min {min(xs):.2f}, max {max(xs):.2f}, range {max(xs) - min(xs):.2f})"  # noqa: E731
+    out.append(f"Spread of mean GOSPA: ours over sampler seeds, tuning half {spread([s.gospa for s in tune_seeds])}, "
+               f"held-out half {spread([s.gospa for s in held_seeds])}; GNN over its {len(gnn)} settings on the "
+               f"tuning half {spread(gnn)}; GNN's best 3 settings: {spread(gnn[:3])}")
+    per_grid = [np.ptp([s.gospa for s in ours[(n, 'default')]]) for n in held]
+    out.append(f"Per held-out grid, range of ours over sampler seeds: mean {np.mean(per_grid):.2f} m, max {max(per_grid):.2f} m")
+    mean, _ = over_seeds([ours[(n, "default")] for n in held])
+    better = min((summarise([stone[(n, k, best[k])] for n in held]) for k in ("GNN", "JPDA")
+                  if all(stone.get((n, k, best[k])) for n in held)), key=lambda s: s.gospa)
+    out.append("")
+    out.append(f"Acceptance on the held-out half, against the better tuned Stone Soup tracker (GOSPA {better.gospa:.2f} m):")
+    out.append(f"  mean GOSPA {mean.gospa:.2f} <= 0.9 x {better.gospa:.2f} = {0.9 * better.gospa:.2f}: "
+               f"{'yes' if mean.gospa <= 0.9 * better.gospa else 'no'} (ratio {mean.gospa / better.gospa:.3f})")
+    out.append(f"  mean count error {mean.count_error:.2f} <= {better.count_error:.2f}: "
+               f"{'yes' if mean.count_error <= better.count_error else 'no'}")
+    out.append(f"  identity switches {mean.switches:.1f} (mean over seeds) <= {better.switches:.0f}: "
+               f"{'yes' if mean.switches <= better.switches else 'no'}")
+    out.append(f"(total {time.perf_counter() - started:.0f} s)")
+    print("\n".join(out), flush=True)
+    record = {
+        "people": {n: _people(n, halves) for n in names},
+        "best": {k: s.text(k) for k, s in best.items()},
+        "ours": {f"{n}/{v}": [s.__dict__ | {"series": None} for s in sc] for (n, v), sc in ours.items()},
+        "stonesoup": {f"{n}/{k}/{s.text(k)}": (None if sc is None else sc.__dict__ | {"series": None})
+                      for (n, k, s), sc in stone.items()}}
+    if args.json:
+        args.json.write_text(json.dumps(record, default=float, indent=1))
+    plot(json.loads(json.dumps(record, default=float)), args.plot)
+    print(f"plot: {args.plot}")
+    return 0
+
+
+def plot(data: dict, path: Path, extra: dict | None = None) -> None:
+    """Mean GOSPA per grid: ours (mean over sampler seeds, bar from the lowest to the highest
+    seed) beside the tuned GNN and JPDA, tuning half then held-out half. ``data`` is the
+    ``--json`` record; ``extra`` maps a label to another such record's ``ours`` for one
+    more setting of ours."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    grids = sorted({k.split("/")[0] for k in data["ours"]}, key=lambda n: (n[0] != "t", n))
+    fig, ax = plt.subplots(figsize=(10, 4.8))
+    x = np.arange(len(grids))
+    series = [("ours (defaults)", data["ours"], "default", -0.12, "C0")]
+    for k, (label, ours) in enumerate((extra or {}).items()):
+        variant = next(iter(ours)).split("/")[1]
+        series.append((label, ours, variant, 0.12 + 0.08 * k, "C3"))
+    for label, ours, variant, dx, colour in series:
+        g = [[s["gospa"] for s in ours.get(f"{n}/{variant}", [])] for n in grids]
+        mean = np.array([np.mean(v) if v else np.nan for v in g])
+        lo = np.array([min(v) if v else np.nan for v in g])
+        hi = np.array([max(v) if v else np.nan for v in g])
+        ax.errorbar(x + dx, mean, yerr=[mean - lo, hi - mean], fmt="o", color=colour, capsize=3,
+                    label=f"{label}: mean over sampler seeds, bar min-max")
+    for kind, marker, colour in (("GNN", "s", "C1"), ("JPDA", "^", "C2")):
+        by_grid = {}
+        for key, sc in data["stonesoup"].items():
+            n, k, _ = key.split("/", 2)
+            if k == kind and sc is not None:
+                by_grid.setdefault(n, []).append(sc["gospa"])
+        best = data.get("best", {}).get(kind)
+        chosen = [data["stonesoup"].get(f"{n}/{kind}/{best}") for n in grids] if best else []
+        ax.plot(x, [c["gospa"] if c else np.nan for c in chosen], marker, color=colour, ms=7,
+                label=f"{kind}, setting tuned on the tuning half")
+        ax.vlines(x + 0.04, [min(by_grid.get(n, [np.nan])) for n in grids], [max(by_grid.get(n, [np.nan])) for n in grids],
+                  color=colour, alpha=0.35, lw=4 if kind == "GNN" else 2)
+    split = sum(n[0] == "t" for n in grids) - 0.5
+    ax.axvline(split, color="k", lw=1)
+    ax.set_ylim(ax.get_ylim()[0], ax.get_ylim()[1] * 1.12)
+    ax.text(split - 0.1, ax.get_ylim()[1] * 0.8, "tuning half", ha="right", va="top")
+    ax.text(split + 0.1, ax.get_ylim()[1] * 0.8, "held-out half", ha="left", va="top")
+    ax.set_xticks(x, [f"{n}\n{data['people'][n]} p" for n in grids], fontsize=8)
+    ax.set_ylabel("mean GOSPA (c = 10 m, p = 2), m")
+    ax.set_title("Multi-target suite: GOSPA per grid (shaded: Stone Soup over the settings tried on the tuning half)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="x-small", loc="upper left", ncol=2)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _ours_table(ours: dict, group: list[str], variants: list[str], halves: dict) -> str:
+    """Ours with each variant on ``group``: the summary and the per-grid GOSPA (mean over seeds)."""
+    half = "tuning" if group[0].startswith("t") else "held-out"
+    lines = [f"{half} half ({len(group)} grids, {sum(_people(n, halves) for n in group)} people), ours only", HEAD,
+             "-" * len(HEAD)]
+    for v in variants:
+        mean, per_seed = over_seeds([ours[(n, v)] for n in group])
+        g = [s.gospa for s in per_seed]
+        grids = " ".join(f"{np.mean([s.gospa for s in ours[(n, v)]]):.2f}" for n in group)
+        lines.append(row(f"ours ({v})", mean, f"seeds {min(g):.2f}-{max(g):.2f}; per grid {grids}"))
+    return "\n".join(lines)
+
+
+def _run_tagged(args):
+    key, path, seeds, variant = args
+    _, scores, case = run_ours((key[0], path, seeds, variant))
+    return key, scores, case
+
+
+def _people(name: str, halves: dict) -> int:
+    for grids in halves.values():
+        for spec in grids:
+            if name[1:] == str(spec["seed"]):
+                return spec["people"]
+    return 0
+
+
+def _rank(stone: dict, kind: str, settings, grids) -> list[tuple[float, vs.Setting]]:
+    """Settings run on every grid of ``grids``, by mean GOSPA over them (lowest first)."""
+    ranked = []
+    for s in settings:
+        scores = [stone.get((n, kind, s)) for n in grids]
+        if all(sc is not None for sc in scores):
+            ranked.append((float(np.mean([sc.gospa for sc in scores])), s))
+    return sorted(ranked, key=lambda r: r[0])
+
+
+if __name__ == "__main__":
+    sys.exit(main())
