@@ -143,7 +143,7 @@ def run_ours(case: Case) -> None:
     time ``OnlineMCMCDA.step`` alone by replaying the same reports into a fresh instance (same
     config and seed, so it must give the same tracks)."""
     from bintrack.formats import open_dataset
-    from bintrack.trackers.multi.fusion import FusionConfig
+    from bintrack.trackers.multi.fusion_config import FusionConfig
     from bintrack.trackers.multi.mcmcda import MCMCDAConfig, OnlineMCMCDA
     from bintrack.messages import PositionReports, TrackSet
     from bintrack.pipeline import run_tracker

@@ -143,7 +143,7 @@ VARIANTS: dict[str, dict] = {
 
 
 def tracker_for(deployment, variant: str, seed: int):
-    from bintrack.trackers.multi.fusion import FusionConfig
+    from bintrack.trackers.multi.fusion_config import FusionConfig
     from bintrack.trackers.multi.mcmcda import MCMCDAConfig
     from bintrack.trackers.multi.tracker import MCMCDATracker
 
@@ -158,7 +158,7 @@ def run_ours(args) -> tuple:
     Case with the reports of the fusion without track aid (Stone Soup's input)."""
     name, path, seeds, variant = args
     from bintrack.formats import open_dataset
-    from bintrack.trackers.multi.fusion import FusionConfig
+    from bintrack.trackers.multi.fusion_config import FusionConfig
     from bintrack.messages import PositionReports, TrackSet
     from bintrack.pipeline import run_tracker
     from bintrack.trackers.multi.tracker import MCMCDATracker

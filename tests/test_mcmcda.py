@@ -11,7 +11,8 @@ import pytest
 
 from bintrack.errors import CommandError
 from bintrack.formats import Dataset, TrackRow, open_dataset
-from bintrack.trackers.multi.fusion import FusionConfig, GridFusion, ScanFusion
+from bintrack.trackers.multi.fusion import GridFusion, ScanFusion
+from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.mcmcda import MCMCDAConfig, OnlineMCMCDA
 from bintrack.messages import Deployment, DiskSensor, MotionSensor, PositionReport, PositionReports, Region, Transition, TrackSet
 from bintrack.evaluation.metrics import multi_target_scores, truth_paths

@@ -6,7 +6,8 @@ import math
 
 import numpy as np
 
-from bintrack.trackers.multi.fusion import FusionConfig, GridFusion
+from bintrack.trackers.multi.fusion import GridFusion
+from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.mcmcda import MCMCDAConfig, OnlineMCMCDA
 from bintrack.messages import Deployment, DiskSensor, PositionReport, PositionReports, Region
 from bintrack.trackers.multi.target_fit import Expectation

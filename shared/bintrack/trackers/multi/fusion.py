@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 from scipy.sparse import csr_matrix
@@ -34,58 +33,10 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from bintrack.errors import CommandError
 from bintrack.messages import Deployment, DiskSensor, PositionReport, PositionReports, SectorSensor, Transition
 from bintrack.sensing import reports_presence
+from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.target_fit import Expectation, TargetFit, weighted_report
 
 DEFAULT_SCAN = 0.5  # s, when the sensors are event-driven (no sampling period)
-
-
-@dataclass(frozen=True)
-class FusionConfig:
-    """Parameters of the grid fusion (paper 004 §III)."""
-
-    cell: float | None = None
-    """side of a grid cell, deployment units; default: an eighth of the smallest sensing range
-    (1 m for the 8 m PIR sensors of paper 004)"""
-    threshold: int = 3
-    """n_d: detections a cell needs before its detection-likelihood is computed"""
-    scan: float | None = None
-    """scan period, s; default: the sensors' sampling period (0.5 s if they have none)"""
-    owner_detects: bool = False
-    """compute a cell only when the sensor it is assigned to detects itself (the paper's
-    trigger); by default a sensor computes its cells whenever n_d covering sensors detect,
-    which does not lose the cells of a sensor that missed the target (1 − pd of the time)"""
-    full: bool = True
-    """weight cells by eq. (4) in full (up to a common factor) rather than its detection part"""
-    clustering: Literal["paper", "explain", "fit"] = "fit"
-    """how a scan's detections become reports (see ``GridFusion.reports``)"""
-    min_gain: float = 3.0
-    """"fit": the least gain, nats of eq. (4)'s likelihood ratio, for which a new target is placed
-    (or one target is split in two)"""
-    expected_gain: float = 1.0
-    """"fit": the least support, nats, for a target placed where a track expects one"""
-    expected_sigmas: float = 3.0
-    """"fit": an expected target may sit within this many standard deviations of the prediction"""
-    split: bool = True
-    """"fit": try replacing each new target by two"""
-    shared: bool = True
-    """"fit": copy a report for an established track hidden in another track's blob"""
-    shared_speed: float = 0.5
-    """the least difference in velocity, m/s (converted to the deployment's units), between the
-    hidden track and the report's"""
-    shared_age: int = 6
-    """reports both tracks must have taken before a copy is made"""
-    shared_gap: float = 1.0
-    """a copy is made when the hidden track's prediction is within this multiple of the
-    sensing range of the report"""
-    shared_edge: float = 1.0
-    """no copy for a track predicted within this multiple of the sensing range of the edge of
-    the sensor field (the sensors' convex hull): there a person with no support of their own
-    has as likely left"""
-    track_aided: bool = True
-    """the MCMCDA tracker passes its tracks' expectations to the "fit" fusion"""
-    explained: float = 1.0
-    """"explain": a report explains the detections of sensors within this multiple of their
-    sensing range of it"""
 
 
 class GridFusion:

@@ -60,15 +60,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.spatial import cKDTree
 from scipy.special import logsumexp
 
 from bintrack.messages import PositionReport
-
-if TYPE_CHECKING:
-    from bintrack.trackers.multi.fusion import GridFusion
+from bintrack.trackers.multi.fusion_config import FusionConfig
 
 # A report's least variance per axis, in cells²: a uniform position in a cell of side h has h²/12.
 _MIN_VARIANCE_CELLS = 1.0 / 12.0
@@ -116,10 +116,29 @@ def weighted_report(cells: np.ndarray, w: np.ndarray, cell: float, weight: float
                           weight=weight)
 
 
+class FitGrid(Protocol):
+    """What the fit reads of the grid (:class:`bintrack.trackers.multi.fusion.GridFusion`):
+    cells of side ``cell`` (units) at ``cells`` (n × 2), the sparse cells × sensors ``cover``, each
+    cell's sensing range ``cell_range``, the per-sensor log likelihood ratios of eq. (4)."""
+
+    config: FusionConfig
+    ids: list[str]
+    cell: float
+    cells: np.ndarray
+    cell_tree: cKDTree
+    cell_range: np.ndarray
+    cover: csr_matrix
+    log_hit_ratio: np.ndarray
+    log_miss_ratio: np.ndarray
+    shared_speed: float
+
+    def depth(self, x: float, y: float) -> float: ...
+
+
 class TargetFit:
     """Fits targets to one scan's detections on ``grid`` (see the module docstring)."""
 
-    def __init__(self, grid: GridFusion):
+    def __init__(self, grid: FitGrid):
         self.grid = grid
         self.config = grid.config
         cover = grid.cover

@@ -11,7 +11,8 @@ arc of length R·arc) or, without an arc, R²/4.
 from __future__ import annotations
 
 
-from bintrack.trackers.multi.fusion import FusionConfig, Scan, ScanFusion
+from bintrack.trackers.multi.fusion import Scan, ScanFusion
+from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.mcmcda import MCMCDAConfig, OnlineMCMCDA
 from bintrack.messages import Deployment, LocalEstimate, Message, PositionReport, PositionReports, Transition
 from bintrack.trackers.base import Tracker
