@@ -113,6 +113,12 @@ class Basestation(TransitionConsumer):
             elif isinstance(out, VelocityEstimate):
                 self.publish(self.keys.motion_velocity(), out)
 
+    def checkpoint_extra(self):
+        return self.latest
+
+    def restore_extra(self, extra) -> None:
+        self.latest = extra
+
     def on_tracks_query(self, query: zenoh.Query) -> None:
         if self.latest is not None:
             query.reply(self.keys.tracks(), encode(self.latest))

@@ -44,6 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser, until_default: str = "eos") -
     parser.add_argument("--until", choices=("eos", "stopped"), default=until_default,
                         help="finalise and exit at the first end of stream once the services upstream are done "
                         "(eos), or record until SIGINT/SIGTERM (stopped) (default: %(default)s)")
+    parser.add_argument("--id", help="instance id (default: host-pid)")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     add_bus_arguments(parser)
 

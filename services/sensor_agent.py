@@ -19,7 +19,7 @@ import zenoh
 from bintrack.bus import Service, add_bus_arguments, log, service_main
 from bintrack.formats import Event, check_value
 from bintrack.keys import parse_key
-from bintrack.messages import Clock, EndOfStream, RawSample, SensorState, Transition, encode
+from bintrack.messages import Clock, EndOfStream, MessageError, RawSample, SensorState, Transition, decode, encode
 from bintrack.transitions import TransitionDetector
 
 HISTORY = 256  # transitions kept per sensor for gap repair
@@ -89,6 +89,9 @@ class SensorAgent(Service):
         detector = TransitionDetector(deployment, hosted)
         self.sent = 0
         self.hosted = {sid: HostedSensor(sid, detector, self) for sid in hosted}
+        checkpoint = self.load_checkpoint()
+        if checkpoint is not None and set(checkpoint["sensors"]) == set(self.hosted):
+            await self._resume(checkpoint)
         self.tasks = [asyncio.create_task(h.run(), name=f"sensor {h.id}") for h in self.hosted.values()]
         self.control: asyncio.Queue = asyncio.Queue()
         self.tasks.append(asyncio.create_task(self._control(), name="control"))
@@ -96,6 +99,31 @@ class SensorAgent(Service):
         self.subscribe(self.keys.clock(), lambda s: self._queue_control(Clock, s))
         self.subscribe(self.keys.eos(), lambda s: self._queue_control(EndOfStream, s))
         self.serve(self.keys.state(), self.on_state)
+
+    async def _resume(self, checkpoint: dict) -> None:
+        """Take the state saved at the last clock tick acknowledged, then the raw samples replay
+        published after that tick (its ``recent`` queryable): what this sensor agent had when
+        it died, and what it missed while it was down (replay holds the clock meanwhile)."""
+        self.sent = checkpoint["sent"]
+        detector = checkpoint["detector"]
+        for sid, (history, last_t) in checkpoint["sensors"].items():
+            hosted = self.hosted[sid]
+            hosted.detector, hosted.history, hosted.last_t = detector, history, last_t
+        selector = f"{self.keys.recent()}?after={checkpoint['tick']!r}"
+        replies = await asyncio.to_thread(self.query, selector, 5.0)
+        taken = 0
+        for payload in replies:
+            raw = _decode_raw(payload)
+            if raw is not None and raw.sensor in self.hosted and raw.t >= self.hosted[raw.sensor].last_t:
+                self.hosted[raw.sensor].handle(raw)
+                taken += 1
+        log.info("%s: resumed at the tick t=%g s with %d transitions sent; %d raw samples since taken from replay",
+                 self.name, checkpoint["tick"], self.sent, taken)
+
+    def _checkpoint(self, tick: float) -> None:
+        detector = next(iter(self.hosted.values())).detector if self.hosted else None
+        self.save_checkpoint({"tick": tick, "sent": self.sent, "detector": detector,
+                              "sensors": {sid: (h.history, h.last_t) for sid, h in self.hosted.items()}})
 
     def on_raw(self, sample: zenoh.Sample) -> None:
         raw = self.decode(RawSample, sample)
@@ -132,6 +160,7 @@ class SensorAgent(Service):
             message = await self.control.get()
             await asyncio.gather(*(h.queue.join() for h in self.hosted.values() if h.queue.qsize()))
             if isinstance(message, Clock):
+                self._checkpoint(message.t)
                 self.report_progress(message.t, sent=self.sent)
             else:
                 self.report_done(message.t)
@@ -159,6 +188,13 @@ class SensorAgent(Service):
         for task in getattr(self, "tasks", []):
             task.cancel()
         await asyncio.gather(*getattr(self, "tasks", []), return_exceptions=True)
+
+
+def _decode_raw(payload: bytes) -> RawSample | None:
+    try:
+        return decode(RawSample, payload)
+    except MessageError:
+        return None
 
 
 def _optional_int(text: str | None) -> int | None:

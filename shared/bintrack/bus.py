@@ -23,6 +23,7 @@ import asyncio
 import json
 import logging
 import os
+import pickle
 import signal
 import socket
 import threading
@@ -40,6 +41,9 @@ from .messages import Clock, EndOfStream, Message, MessageError, decode, encode
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_INBOX = 65536
+PARENT_ENV = "BINTRACK_PARENT_PID"  # set by a supervisor (bintrack up): the service ends when that process does
+STATE_DIR_OPTION = "--state-dir"
+PARENT_CHECK = 1.0  # s between checks that the supervisor is still there
 
 log = logging.getLogger("bintrack")
 
@@ -65,6 +69,9 @@ def add_bus_arguments(parser: argparse.ArgumentParser, *, net_default: str | Non
                        + (f" (default: {net_default})" if net_default else ""))
     group.add_argument("--wait", type=float, default=60.0, metavar="S",
                        help="how long to keep retrying to reach the router, s (default: %(default)s)")
+    group.add_argument(STATE_DIR_OPTION, metavar="DIR",
+                       help="keep a checkpoint of this instance (named by --id) in DIR and resume from it after "
+                       "a restart (default: none)")
 
 
 def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
@@ -347,9 +354,11 @@ class Service:
         self.subscribe(self.keys.eos(), on_eos)
 
     def query(self, key_expr: str, timeout: float = 2.0) -> list[bytes]:
-        """Payloads of the replies to a get on ``key_expr`` (blocking; call via to_thread)."""
+        """Payloads of every reply to a get on ``key_expr``, in order (no consolidation: replies
+        on one key are all kept); blocking, call via to_thread off setup."""
         assert self.session is not None
-        return [r.ok.payload.to_bytes() for r in self.session.get(key_expr, timeout=timeout) if r.ok is not None]
+        replies = self.session.get(key_expr, timeout=timeout, consolidation=zenoh.ConsolidationMode.NONE)
+        return [r.ok.payload.to_bytes() for r in replies if r.ok is not None]
 
     async def wait_for_deployment(self):
         """The deployment from the ``deployment`` queryable, retried until it answers."""
@@ -370,10 +379,61 @@ class Service:
 
     # -- lifecycle -------------------------------------------------------------------------
 
+    def checkpoint_path(self) -> str | None:
+        """Where this instance keeps its checkpoint (``--state-dir``/<service>-<id>.pickle), or None."""
+        folder = getattr(self.args, "state_dir", None)
+        return None if not folder else os.path.join(folder, f"{self.name}-{self.instance}.pickle")
+
+    def load_checkpoint(self):
+        """The object saved by :meth:`save_checkpoint` before a restart, or None (logged)."""
+        path = self.checkpoint_path()
+        if path is None or not os.path.exists(path):
+            return None
+        try:
+            with open(path, "rb") as handle:
+                state = pickle.load(handle)
+        except (OSError, pickle.UnpicklingError, EOFError, AttributeError) as exc:
+            log.warning("%s: checkpoint %s unreadable (%s); starting afresh", self.name, path, exc)
+            return None
+        log.info("%s %s: restarted; resuming from its checkpoint", self.name, self.instance)
+        return state
+
+    def save_checkpoint(self, state) -> None:
+        """Save ``state`` atomically (written aside, then renamed) if ``--state-dir`` is set."""
+        path = self.checkpoint_path()
+        if path is None:
+            return
+        with open(path + ".tmp", "wb") as handle:
+            pickle.dump(state, handle, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(path + ".tmp", path)
+
+    def _watch_parent(self) -> None:
+        """End with the supervisor: the kernel sends SIGTERM when it dies (Linux), and a check
+        every PARENT_CHECK s covers the rest (a service re-parented is an orphan)."""
+        parent = os.environ.get(PARENT_ENV)
+        if not parent:
+            return
+        try:
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+
+        def check() -> None:
+            if os.getppid() != int(parent):
+                log.warning("%s: its supervisor (pid %s) is gone; stopping", self.name, parent)
+                self.stop()
+            elif not self.stopping.is_set():
+                self.loop.call_later(PARENT_CHECK, check)
+
+        check()
+
     async def _run(self) -> int:
         self.loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
             self.loop.add_signal_handler(sig, self.stop)
+        self._watch_parent()
         self.inbox = Inbox(self.loop, getattr(self.args, "inbox", DEFAULT_INBOX))
         try:
             config = zenoh_config(self.args)

@@ -44,7 +44,9 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
         extra = (*tracker_args, *(("--estimates", estimates) if estimates is not None else ()))
         services.append(ServiceCommand("basestation", ("--tracker", tracker, *extra, *bus)))
     if record is not None:
-        services.append(ServiceCommand("recorder", ("--out", record, *bus)))
+        # a looping replay never ends: record across the loops until stopped
+        until = ("--until", "stopped") if loop and source is not None else ()
+        services.append(ServiceCommand("recorder", ("--out", record, *until, *bus)))
     if source is not None:
         replay = [source, "--speed", _number(speed), *(["--loop"] if loop else []),
                   "--wait-for", ",".join(s.name for s in services)]

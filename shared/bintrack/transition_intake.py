@@ -34,6 +34,16 @@ class TransitionConsumer(Service):
         self.fetched: set[tuple[str | None, int | None]] = set()  # fetched from state; may still arrive
         self.newest: dict[str, float] = {}  # event time of the newest transition taken, per sensor
         self.restarts: set[str | None] = set()  # sources seen counting from 1 again (logged once)
+        checkpoint = self.load_checkpoint()
+        if checkpoint is not None:
+            (tick, self.driver, self.sequence, self.sources, self.fetched, self.newest, self.restarts,
+             extra) = checkpoint
+            self.restore_extra(extra)
+            fetched = len(self.fetched)
+            for source, received in self.sources.contiguous().items():
+                self.fetch_missed(f"{self.keys.state()}?source={source};after={received}")
+            log.info("%s: resumed at the clock tick t=%g s; %d transitions sent since fetched from the sensors' state",
+                     self.name, tick, len(self.fetched) - fetched)
         self.subscribe(self.keys.transition(), self.on_transition)
         self.subscribe(self.keys.progress("sensor_agent"), self.on_agent_progress)
         self.subscribe(self.keys.clock(), self.on_clock)
@@ -42,6 +52,13 @@ class TransitionConsumer(Service):
     def emit(self, outputs: list[Message]) -> None:
         """Publish the tracker's outputs."""
         raise NotImplementedError
+
+    def checkpoint_extra(self):
+        """What a subclass adds to the checkpoint taken at each clock tick."""
+        return None
+
+    def restore_extra(self, extra) -> None:
+        """Take back what :meth:`checkpoint_extra` gave."""
 
     def on_transition(self, sample: zenoh.Sample) -> None:
         transition = self.decode(Transition, sample)
@@ -140,6 +157,10 @@ class TransitionConsumer(Service):
         if tick is None:
             return
         self.emit(self.driver.advance(tick.t - self.args.lateness))
+        # after the outputs went out, before acknowledging: a restart resumes at this tick and
+        # fetches the transitions after it from the sensors' state queryables
+        self.save_checkpoint((tick.t, self.driver, self.sequence, self.sources, self.fetched, self.newest, self.restarts,
+                              self.checkpoint_extra()))
         self.report_progress(tick.t)
 
     def on_finish(self, t: float) -> None:

@@ -1,0 +1,198 @@
+"""The stack survives its faults and says so: `bintrack up` as a real process tree on a real
+router; a service killed with SIGKILL mid-run is restarted and the run still ends with the
+rows `bintrack track` gives offline (track identities included); SIGTERM on `up` leaves no
+process behind.
+
+Every wait is on an event (a line on up's stderr, a process's exit); the timeouts are only
+there to fail a hung run, generously.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
+
+from conftest import REPO, free_port
+
+DARPA3 = REPO / "datasets" / "darpa-grid-3"
+HUNG = 300.0  # s: only a hung run takes this long
+
+
+def bintrack(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "bintrack.cli", *args], capture_output=True, text=True,
+                          timeout=timeout, cwd=REPO)
+
+
+@pytest.fixture(scope="module")
+def grid_slice(tmp_path_factory) -> Path:
+    """The first 40 s of darpa-grid-3: three people, enough transitions for identities to matter."""
+    ds = open_dataset(DARPA3)
+    events = [e for e in ds.events() if e.t < 40.0]
+    truth = [TruthRow(*r) for r in ds.truth() if r.t < 40.0]
+    return write_dataset(tmp_path_factory.mktemp("slice") / "darpa-grid-3", ds.deployment, events, truth)
+
+
+@pytest.fixture(scope="module")
+def offline_rows(grid_slice, tmp_path_factory):
+    """tracks.csv rows of `bintrack track` per tracker (computed once)."""
+    cache: dict[str, list] = {}
+
+    def rows(tracker: str) -> list:
+        if tracker not in cache:
+            out = tmp_path_factory.mktemp("offline") / f"{tracker}.csv"
+            result = bintrack("track", str(grid_slice), "--tracker", tracker, "--out", str(out))
+            assert result.returncode == 0, result.stderr
+            cache[tracker] = read_tracks(out)
+        return cache[tracker]
+
+    return rows
+
+
+def children(pid: int) -> dict[int, str]:
+    """pid → command line of the processes whose parent is ``pid`` (from /proc)."""
+    found = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = Path(f"/proc/{entry}/stat").read_text()
+            ppid = int(stat.rsplit(")", 1)[1].split()[1])
+            if ppid == pid:
+                found[int(entry)] = Path(f"/proc/{entry}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except (OSError, ValueError, IndexError):
+            continue
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+class Up:
+    """`bintrack up` in a subprocess; its stderr is read line by line on a thread, and tests
+    wait for a line that satisfies a condition."""
+
+    def __init__(self, *args: str):
+        self.proc = subprocess.Popen([sys.executable, "-m", "bintrack.cli", "up", *args,
+                                      "--listen", f"tcp/127.0.0.1:{free_port()}", "--progress-interval", "0.2"],
+                                     stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, cwd=REPO)
+        self.lines: list[str] = []
+        self.changed = threading.Condition()
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stderr:
+            with self.changed:
+                self.lines.append(line.rstrip("\n"))
+                self.changed.notify_all()
+        with self.changed:
+            self.lines.append("<eof>")
+            self.changed.notify_all()
+
+    @property
+    def log(self) -> str:
+        return "\n".join(self.lines)
+
+    def wait_for(self, condition, what: str) -> str:
+        """The first line (from the start) for which ``condition(line)`` holds."""
+        seen = 0
+        with self.changed:
+            while True:
+                for line in self.lines[seen:]:
+                    if condition(line):
+                        return line
+                    if line == "<eof>":
+                        raise AssertionError(f"up ended before {what}:\n{self.log[-4000:]}")
+                seen = len(self.lines)
+                assert self.changed.wait(HUNG), f"no {what} within {HUNG} s:\n{self.log[-4000:]}"
+
+    def event_time_at_least(self, t: float) -> None:
+        def reached(line: str) -> bool:
+            if not line.startswith("up: t="):
+                return False
+            value = line[len("up: t="):].split("s")[0].strip()
+            return value != "-" and float(value) >= t
+        self.wait_for(reached, f"event time {t} s")
+
+    def service_pid(self, name: str) -> int:
+        pids = [pid for pid, cmd in children(self.proc.pid).items() if f"--id up{self.proc.pid}-{name} " in cmd + " "]
+        assert len(pids) == 1, (name, children(self.proc.pid))
+        return pids[0]
+
+    def finish(self) -> int:
+        code = self.proc.wait(timeout=HUNG)
+        self.reader.join(timeout=10)
+        return code
+
+
+def exported_tracks(recording: Path, tmp: Path) -> list:
+    out = tmp / "exported.csv"
+    result = bintrack("export", str(recording), "--what", "tracks", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    return read_tracks(out)
+
+
+@pytest.mark.parametrize("tracker, victim", [
+    ("mcmcda", "sensor_agent"),
+    ("mcmcda", "basestation"),
+    ("equal-weight", "peer_agent"),
+    ("mcmcda", "replay"),
+])
+def test_a_service_killed_mid_run_is_restarted_and_the_rows_are_the_offline_ones(
+        grid_slice, offline_rows, tracker, victim, tmp_path):
+    recording = tmp_path / "run.mcap"
+    up = Up(str(grid_slice), "--tracker", tracker, "--speed", "0", "--record", str(recording), "--exit-at-end")
+    up.event_time_at_least(15.0)
+    os.kill(up.service_pid(victim), signal.SIGKILL)
+    up.wait_for(lambda line: line.startswith(f"up: {victim} killed by SIGKILL"), "the death logged")
+    up.wait_for(lambda line: line.startswith(f"up: {victim} restarted"), "the restart logged")
+    assert up.finish() == 0, up.log[-4000:]
+    assert exported_tracks(recording, tmp_path) == offline_rows(tracker), up.log[-6000:]
+
+
+def test_sigterm_on_up_leaves_no_process_behind(grid_slice):
+    up = Up(str(grid_slice), "--tracker", "mcmcda", "--speed", "1")
+    up.event_time_at_least(2.0)
+    pids = list(children(up.proc.pid))
+    assert len(pids) == 3, children(up.proc.pid)  # sensor agent, base station, replay
+    up.proc.send_signal(signal.SIGTERM)
+    assert up.finish() == 128 + signal.SIGTERM
+    assert "SIGTERM received; stopping" in up.log
+    assert [pid for pid in pids if alive(pid)] == []  # reaped by up before it exited
+
+
+def wait_gone(pid: int, timeout: float) -> bool:
+    """Wait for ``pid`` (not necessarily our child) to end, on its pidfd; True if it did."""
+    try:
+        fd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        return True
+    try:
+        return bool(select.select([fd], [], [], timeout)[0])
+    finally:
+        os.close(fd)
+
+
+def test_services_end_when_up_is_killed(grid_slice):
+    """SIGKILL gives up no chance to stop them: they end by themselves (parent-death signal)."""
+    up = Up(str(grid_slice), "--tracker", "mcmcda", "--speed", "1")
+    up.event_time_at_least(2.0)
+    pids = list(children(up.proc.pid))
+    assert len(pids) == 3
+    up.proc.kill()
+    up.finish()
+    assert [pid for pid in pids if not wait_gone(pid, 30.0)] == []
