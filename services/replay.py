@@ -134,7 +134,8 @@ class Replay(Service):
             self._on_alive(sample)
 
     def _on_recent(self, query: zenoh.Query) -> None:
-        """``control/recent?after=T``: each raw sample published after the tick at T (s), in order."""
+        """``control/recent?after=T``: each raw sample published after the tick at T (s), in
+        order, then a ``Clock`` (the last tick published) that ends the answer."""
         try:
             after = float(query.parameters.get("after") or "-inf")
         except ValueError:
@@ -143,6 +144,8 @@ class Replay(Service):
         for tick, key, payload in self.recent:
             if tick >= after:
                 query.reply(self.keys.recent(), payload)
+        # last, the clock tick before the newest sample: the asker knows the answer is complete
+        query.reply(self.keys.recent(), encode(Clock(t=-math.inf if self.last_tick is None else self.last_tick)))
 
     def _alive_now(self) -> list[zenoh.Sample]:
         replies = self.session.liveliness().get(self.keys.alive(), timeout=5.0)
@@ -212,8 +215,9 @@ class Replay(Service):
         self.save_checkpoint({"tick": t, "published": self.published})
 
     def _missing(self) -> list[str]:
-        """The --wait-for services with no live instance."""
-        return [w for w in self.wanted if not any(service == w for service, _ in self.alive)]
+        """The --wait-for services with no live instance, and the router if it is lost."""
+        missing = [w for w in self.wanted if not any(service == w for service, _ in self.alive)]
+        return missing + ["the router"] if self.router_lost_at is not None else missing
 
     async def _hold_while_missing(self, t: float) -> bool:
         """While an awaited service has no live instance (it died, or lost the router), hold the
@@ -226,7 +230,9 @@ class Replay(Service):
         started = time.monotonic()
         if not await self._until(lambda: not self._missing(), lambda: "services " + ", ".join(self._missing())):
             return False
-        log.info("replay: %s back after %.1f s; resuming at t=%.3f s", gone, time.monotonic() - started, t)
+        held = time.monotonic() - started
+        self.pacer.hold(held)
+        log.info("replay: %s back after %.1f s; resuming at t=%.3f s", gone, held, t)
         return True
 
     # -- the run ----------------------------------------------------------------------------
@@ -287,7 +293,7 @@ class Replay(Service):
             self.exit_status = 2
 
     async def _play(self) -> None:
-        pacer = Pacer(self.args.speed)
+        self.pacer = pacer = Pacer(self.args.speed)
         plan = schedule(self._pass, period=self.args.clock_period, max_ahead=self.args.max_ahead,
                         recorded_ticks=self.recording is not None, loop=self.args.loop)
         started = last_said = time.monotonic()

@@ -24,6 +24,7 @@ from bintrack.transitions import TransitionDetector
 
 HISTORY = 256  # transitions kept per sensor for gap repair
 QUEUE = 1024  # raw samples queued per sensor
+RETRY = 0.5  # s between asks for replay's recent samples
 
 
 class HostedSensor:
@@ -88,6 +89,7 @@ class SensorAgent(Service):
             return
         detector = TransitionDetector(deployment, hosted)
         self.sent = 0
+        self.acked = float("-inf")  # the last clock tick acknowledged
         self.hosted = {sid: HostedSensor(sid, detector, self) for sid in hosted}
         checkpoint = self.load_checkpoint()
         if checkpoint is not None and set(checkpoint["sensors"]) == set(self.hosted):
@@ -109,16 +111,37 @@ class SensorAgent(Service):
         for sid, (history, last_t) in checkpoint["sensors"].items():
             hosted = self.hosted[sid]
             hosted.detector, hosted.history, hosted.last_t = detector, history, last_t
-        selector = f"{self.keys.recent()}?after={checkpoint['tick']!r}"
-        replies = await asyncio.to_thread(self.query, selector, 5.0)
-        taken = 0
-        for payload in replies:
-            raw = _decode_raw(payload)
-            if raw is not None and raw.sensor in self.hosted and raw.t >= self.hosted[raw.sensor].last_t:
-                self.hosted[raw.sensor].handle(raw)
-                taken += 1
+        self.acked = checkpoint["tick"]
+        taken = await self._take_recent(newer=False)
         log.info("%s: resumed at the tick t=%g s with %d transitions sent; %d raw samples since taken from replay",
                  self.name, checkpoint["tick"], self.sent, taken)
+
+    async def _take_recent(self, newer: bool) -> int:
+        """Handle the raw samples replay published after the last tick acknowledged (its
+        ``recent`` queryable); with ``newer`` only those later than the sensor's last sample
+        (the others arrived). How many were taken."""
+        while True:  # until replay answers (after a router outage it may not be back yet)
+            replies = await asyncio.to_thread(self.query, f"{self.keys.recent()}?after={self.acked!r}", 2.0)
+            if any(_decode(Clock, payload) is not None for payload in replies) or self.stopping.is_set():
+                break
+            log.info("%s: waiting for replay's recent samples", self.name)
+            await asyncio.sleep(RETRY)
+        taken = 0
+        for payload in replies:
+            raw = _decode(RawSample, payload)
+            if raw is None or raw.sensor not in self.hosted:
+                continue
+            hosted = self.hosted[raw.sensor]
+            if raw.t > hosted.last_t or (not newer and raw.t == hosted.last_t):
+                await hosted.queue.join()  # after what is queued already
+                hosted.handle(raw)
+                taken += 1
+        return taken
+
+    async def on_router_back(self) -> None:
+        if getattr(self, "hosted", None):
+            taken = await self._take_recent(newer=True)
+            log.info("%s: %d raw samples published during the outage taken from replay", self.name, taken)
 
     def _checkpoint(self, tick: float) -> None:
         detector = next(iter(self.hosted.values())).detector if self.hosted else None
@@ -160,6 +183,7 @@ class SensorAgent(Service):
             message = await self.control.get()
             await asyncio.gather(*(h.queue.join() for h in self.hosted.values() if h.queue.qsize()))
             if isinstance(message, Clock):
+                self.acked = message.t
                 self._checkpoint(message.t)
                 self.report_progress(message.t, sent=self.sent)
             else:
@@ -190,9 +214,9 @@ class SensorAgent(Service):
         await asyncio.gather(*getattr(self, "tasks", []), return_exceptions=True)
 
 
-def _decode_raw(payload: bytes) -> RawSample | None:
+def _decode(cls, payload: bytes):
     try:
-        return decode(RawSample, payload)
+        return decode(cls, payload)
     except MessageError:
         return None
 

@@ -18,8 +18,13 @@ import threading
 from pathlib import Path
 
 import pytest
+import zenoh
 
 from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
+from bintrack.bus import client_config
+from bintrack.keys import Keys
+from bintrack.messages import Clock, decode
+from bintrack.stack import stack_commands
 
 from conftest import REPO, free_port
 
@@ -196,3 +201,72 @@ def test_services_end_when_up_is_killed(grid_slice):
     up.proc.kill()
     up.finish()
     assert [pid for pid in pids if not wait_gone(pid, 30.0)] == []
+
+
+ROUTER = """
+import signal, sys, zenoh
+from bintrack.bus import router_config
+router = zenoh.open(router_config([sys.argv[1]]))
+print("router up", flush=True)
+signal.sigwait({signal.SIGTERM, signal.SIGINT})
+router.close()
+"""
+
+
+def start_router(endpoint: str) -> subprocess.Popen:
+    """A Zenoh router in a process of its own (to be killed), once it listens."""
+    proc = subprocess.Popen([sys.executable, "-c", ROUTER, endpoint], stdout=subprocess.PIPE, text=True, cwd=REPO)
+    assert proc.stdout.readline().strip() == "router up"
+    return proc
+
+
+def test_router_killed_and_restarted_loses_nothing_at_speed_0(grid_slice, offline_rows, tmp_path, services):
+    """Services started by hand on a router of their own; the router is killed mid-run and
+    started again: every service logs the loss and the return, replay holds its clock
+    meanwhile, and the run ends with the offline rows."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    net = open_dataset(grid_slice).deployment.name
+    recording = tmp_path / "run.mcap"
+    router = start_router(endpoint)
+    procs = {c.name: services(c.name, *[a for a in c.args if a != "-e" and a != "tcp/router:7447"],
+                              endpoint=endpoint)
+             for c in stack_commands(tracker="mcmcda", endpoint="tcp/router:7447", net=net, source=str(grid_slice),
+                                     speed=0, record=str(recording))}
+    killed = threading.Event()
+
+    def on_clock(sample) -> None:  # kills the router the moment event time reaches 10 s
+        if decode(Clock, sample.payload.to_bytes()).t >= 10.0 and not killed.is_set():
+            router.kill()
+            killed.set()
+
+    session = zenoh.open(client_config([endpoint]))
+    subscriber = session.declare_subscriber(Keys(net).clock(), on_clock)
+    try:
+        assert killed.wait(HUNG), procs["replay"].log
+        router.wait()
+        for proc in procs.values():
+            wait_logged(proc, lambda log: "lost its router" in log, f"{proc.name} logging the loss")
+        router = start_router(endpoint)
+        for proc in procs.values():
+            wait_logged(proc, lambda log: "reached again" in log, f"{proc.name} logging the return")
+        assert procs["replay"].wait(HUNG) == 0, procs["replay"].log
+        assert procs["recorder"].wait(HUNG) == 0, procs["recorder"].log
+    finally:
+        subscriber.undeclare()
+        session.close()
+        router.terminate()
+        router.wait()
+    assert "holding event time" in procs["replay"].log
+    assert exported_tracks(recording, tmp_path) == offline_rows("mcmcda"), "\n".join(
+        p.log[-3000:] for p in procs.values())
+
+
+def wait_logged(proc, condition, what: str) -> None:
+    """Wait until ``condition(log)`` holds for the service's log (polled: it is a file)."""
+    import time
+
+    deadline = time.monotonic() + HUNG
+    while not condition(proc.log):
+        assert proc.proc.poll() is None or condition(proc.log), f"{proc.name} ended before {what}:\n{proc.log[-3000:]}"
+        assert time.monotonic() < deadline, f"no {what}:\n{proc.log[-3000:]}"
+        time.sleep(0.05)

@@ -240,6 +240,8 @@ class Service:
         self._network_subscriber = None
         self._token = None
         self.exit_status = 0
+        self.routers: set[str] = set()  # the routers this session is connected to
+        self.router_lost_at: float | None = None  # monotonic time the last router went, while none is back
 
     # -- to override ---------------------------------------------------------------------
 
@@ -252,6 +254,12 @@ class Service:
 
     async def teardown(self) -> None:
         """Last words before the session closes."""
+
+    def on_router_lost(self) -> None:
+        """The session lost its last router (called on the loop; the token is withdrawn)."""
+
+    async def on_router_back(self) -> None:
+        """A router is back after a loss: fetch what went missing (the token is declared after)."""
 
     # -- helpers ---------------------------------------------------------------------------
 
@@ -407,6 +415,50 @@ class Service:
             pickle.dump(state, handle, protocol=pickle.HIGHEST_PROTOCOL)
         os.replace(path + ".tmp", path)
 
+    def _watch_router(self) -> None:
+        """Log the loss and return of the router (Zenoh transport events). While it is lost the
+        liveliness token is withdrawn, so replay holds its clock; once it is back the service
+        fetches what it missed (:meth:`on_router_back`) and declares its token again."""
+        self.routers = {str(zid) for zid in self.session.info.routers_zid()}
+
+        def on_event(event) -> None:  # a Zenoh thread: hand over to the loop, nothing else
+            if str(event.transport.whatami).lower() == "router":
+                try:
+                    self.loop.call_soon_threadsafe(self._router_event, event.kind == zenoh.SampleKind.PUT,
+                                                   str(event.transport.zid))
+                except RuntimeError:  # loop closed during shutdown
+                    pass
+
+        self._declared.append(self.session.info.declare_transport_events_listener(on_event, history=False))
+
+    def _router_event(self, connected: bool, zid: str) -> None:
+        if self.stopping.is_set():
+            return
+        if connected:
+            self.routers.add(zid)
+            if self.router_lost_at is not None:
+                log.warning("%s: router %s reached again after %.1f s", self.name, zid[:8],
+                            time.monotonic() - self.router_lost_at)
+                self.router_lost_at = None
+                asyncio.ensure_future(self._recover())
+            return
+        self.routers.discard(zid)
+        if self.routers or self.router_lost_at is not None:
+            return
+        self.router_lost_at = time.monotonic()
+        log.warning("%s: lost its router %s; waiting for it to come back", self.name, zid[:8])
+        if self._token is not None:
+            self._token.undeclare()
+            self._token = None
+            self._withdrawn = True
+        self.on_router_lost()
+
+    async def _recover(self) -> None:
+        await self.on_router_back()
+        if getattr(self, "_withdrawn", False) and self.router_lost_at is None and not self.stopping.is_set():
+            self._withdrawn = False
+            self._token = self.session.liveliness().declare_token(self.keys.alive(self.name, self.instance))
+
     def _watch_parent(self) -> None:
         """End with the supervisor: the kernel sends SIGTERM when it dies (Linux), and a check
         every PARENT_CHECK s covers the rest (a service re-parented is an orphan)."""
@@ -446,6 +498,7 @@ class Service:
             log.error("%s", exc)
             return 1
         try:
+            self._watch_router()
             try:
                 await self.setup()
             except CommandError as exc:  # the deployment does not suit this service's options

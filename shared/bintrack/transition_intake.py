@@ -39,11 +39,8 @@ class TransitionConsumer(Service):
             (tick, self.driver, self.sequence, self.sources, self.fetched, self.newest, self.restarts,
              extra) = checkpoint
             self.restore_extra(extra)
-            fetched = len(self.fetched)
-            for source, received in self.sources.contiguous().items():
-                self.fetch_missed(f"{self.keys.state()}?source={source};after={received}")
             log.info("%s: resumed at the clock tick t=%g s; %d transitions sent since fetched from the sensors' state",
-                     self.name, tick, len(self.fetched) - fetched)
+                     self.name, tick, self.fetch_since_received())
         self.subscribe(self.keys.transition(), self.on_transition)
         self.subscribe(self.keys.progress("sensor_agent"), self.on_agent_progress)
         self.subscribe(self.keys.clock(), self.on_clock)
@@ -52,6 +49,19 @@ class TransitionConsumer(Service):
     def emit(self, outputs: list[Message]) -> None:
         """Publish the tracker's outputs."""
         raise NotImplementedError
+
+    def fetch_since_received(self) -> int:
+        """Fetch from the sensors' state every transition each known sensor agent sent after the
+        last one received in order; how many were taken."""
+        before = len(self.fetched)
+        for source, received in self.sources.contiguous().items():
+            self.fetch_missed(f"{self.keys.state()}?source={source};after={received}")
+        return len(self.fetched) - before
+
+    async def on_router_back(self) -> None:
+        if hasattr(self, "sources"):
+            log.info("%s: %d transitions sent during the outage fetched from the sensors' state",
+                     self.name, self.fetch_since_received())
 
     def checkpoint_extra(self):
         """What a subclass adds to the checkpoint taken at each clock tick."""
