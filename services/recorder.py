@@ -23,7 +23,9 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
 import time
+from collections import deque
 from pathlib import Path
 
 import zenoh
@@ -31,11 +33,15 @@ import zenoh
 from bintrack.bus import Service, UpstreamDone, add_bus_arguments, service_main
 from bintrack.errors import CommandError
 from bintrack.keys import parse_key
-from bintrack.recording import KIND_TYPES, RecordingWriter, event_time
+from bintrack.formats import FormatError
+from bintrack.messages import MessageError, TrackSet, decode
+from bintrack.recording import KIND_TYPES, RecordingWriter, event_time, open_recording
 
 log = logging.getLogger("bintrack")
 
 UPSTREAM = ("sensor_agent", "peer_agent", "basestation")
+RESULTS = frozenset({"transition", "estimate", "fusion_reports", "tracks", "laser_objects", "motion_velocity"})
+RECENT_PER_KEY = 64  # payloads remembered per key of RESULTS, to record a message sent again only once
 WAIT_LOG_INTERVAL = 5.0  # s of wall clock between "still waiting" lines
 
 
@@ -72,12 +78,18 @@ class Recorder(Service):
         self.upstream = UpstreamDone(UPSTREAM)
         self.eos: float | None = None
         self.last_t = 0.0
+        self.last_tracks = float("-inf")  # event time of the newest track set recorded
+        self.recent: dict[str, deque[bytes]] = {}
         self._changed = asyncio.Event()
 
     async def setup(self) -> None:
         deployment = await self.wait_for_deployment()
         if deployment is None:
             return
+        restarted = self.load_checkpoint() is not None and Path(self.args.out).exists()
+        if restarted:  # keep what the previous instance recorded: it is copied into the new file
+            aside = Path(self.args.out + ".interrupted")
+            os.replace(self.args.out, aside)
         try:
             self.writer = RecordingWriter(self.args.out, deployment, self.args.net)
         except OSError as exc:
@@ -85,10 +97,53 @@ class Recorder(Service):
             self.exit_status = 2
             self.stop()
             return
+        self.save_checkpoint({"out": self.args.out})
+        if restarted:
+            kept = self._copy(aside)
+            aside.unlink()
+            fetched = await asyncio.to_thread(self._fetch_tracks)
+            log.info("recorder: restarted; kept the %d messages recorded before, fetched %d track sets "
+                     "published since from the base station", kept, fetched)
         self._declared.append(self.session.liveliness().declare_subscriber(
             self.keys.alive(), self.inbox.callback(self._on_alive), history=True))
         self.subscribe(self.keys.all(), self._on_sample)
         log.info("recorder: recording %s into %s", self.keys.all(), self.args.out)
+
+    def _copy(self, path: Path) -> int:
+        """Copy the readable records of an interrupted recording into this one; how many."""
+        count = 0
+        try:
+            for record in open_recording(path).records():
+                self.writer.write(record.key, record.t, record.payload, record.received_ns)
+                if record.kind == "tracks":
+                    self.last_tracks = max(self.last_tracks, record.t)
+                self.last_t = max(self.last_t, record.t)
+                count += 1
+        except FormatError as exc:
+            log.warning("recorder: %s; kept %d messages of it", exc, count)
+        return count
+
+    def _fetch_tracks(self) -> int:
+        """Record the track sets the base station published after the last one recorded (its
+        ``tracks?after=T`` queryable): those a restart or a router outage kept from us."""
+        count = 0
+        for payload in self.query(f"{self.keys.tracks()}?after={self.last_tracks!r}", timeout=2.0):
+            try:
+                tracks = decode(TrackSet, payload)
+            except MessageError as exc:
+                self.bad.report(self.keys.tracks(), exc.reason)
+                continue
+            if tracks.t > self.last_tracks:
+                self.recent.setdefault(self.keys.tracks(), deque(maxlen=RECENT_PER_KEY)).append(payload)
+                self.writer.write(self.keys.tracks(), tracks.t, payload, time.time_ns())
+                self.last_tracks = tracks.t
+                count += 1
+        return count
+
+    async def on_router_back(self) -> None:
+        if self.writer is not None and not self.writer.closed:
+            fetched = await asyncio.to_thread(self._fetch_tracks)
+            log.info("recorder: %d track sets published during the outage fetched from the base station", fetched)
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         self.upstream.on_liveliness(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
@@ -109,15 +164,24 @@ class Recorder(Service):
         message = self.decode(cls, sample)
         if message is None:
             return
+        payload = sample.payload.to_bytes()
+        recent = self.recent.setdefault(key, deque(maxlen=RECENT_PER_KEY)) if parsed.kind in RESULTS else None
+        if recent is not None and payload in recent:  # sent again by a service that restarted from its checkpoint
+            self.bad.report(key, "duplicate: the same message again")
+            return
         t = event_time(message)
         t = self.last_t if t is None else t
         try:
-            self.writer.write(key, t, sample.payload.to_bytes(), time.time_ns())
+            self.writer.write(key, t, payload, time.time_ns())
         except ValueError as exc:
             self.bad.report(key, f"unrecordable: {exc}")
             return
+        if recent is not None:
+            recent.append(payload)
         self.last_t = max(self.last_t, t)
-        if parsed.kind == "clock":
+        if parsed.kind == "tracks":
+            self.last_tracks = max(self.last_tracks, t)
+        elif parsed.kind == "clock":
             self.writer.flush()
             self.report_progress(message.t)
         elif parsed.kind == "eos":

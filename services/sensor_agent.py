@@ -103,14 +103,16 @@ class SensorAgent(Service):
         self.serve(self.keys.state(), self.on_state)
 
     async def _resume(self, checkpoint: dict) -> None:
-        """Take the state saved at the last clock tick acknowledged, then the raw samples replay
-        published after that tick (its ``recent`` queryable): what this sensor agent had when
-        it died, and what it missed while it was down (replay holds the clock meanwhile)."""
+        """Take the state saved at the last clock tick acknowledged (statuses and counters; not
+        the history, so transitions sent before the restart can no longer be fetched from it),
+        then the raw samples replay published after that tick (its ``recent`` queryable): what
+        this sensor agent had when it died, and what it missed while it was down (replay holds
+        the clock meanwhile)."""
         self.sent = checkpoint["sent"]
         detector = checkpoint["detector"]
-        for sid, (history, last_t) in checkpoint["sensors"].items():
+        for sid, last_t in checkpoint["sensors"].items():
             hosted = self.hosted[sid]
-            hosted.detector, hosted.history, hosted.last_t = detector, history, last_t
+            hosted.detector, hosted.last_t = detector, last_t
         self.acked = checkpoint["tick"]
         taken = await self._take_recent(newer=False)
         log.info("%s: resumed at the tick t=%g s with %d transitions sent; %d raw samples since taken from replay",
@@ -146,7 +148,7 @@ class SensorAgent(Service):
     def _checkpoint(self, tick: float) -> None:
         detector = next(iter(self.hosted.values())).detector if self.hosted else None
         self.save_checkpoint({"tick": tick, "sent": self.sent, "detector": detector,
-                              "sensors": {sid: (h.history, h.last_t) for sid, h in self.hosted.items()}})
+                              "sensors": {sid: h.last_t for sid, h in self.hosted.items()}})
 
     def on_raw(self, sample: zenoh.Sample) -> None:
         raw = self.decode(RawSample, sample)

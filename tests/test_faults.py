@@ -23,7 +23,7 @@ import zenoh
 from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
 from bintrack.bus import client_config
 from bintrack.keys import Keys
-from bintrack.messages import Clock, decode
+from bintrack.messages import Clock, RawSample, decode, encode
 from bintrack.stack import stack_commands
 
 from conftest import REPO, free_port
@@ -156,6 +156,7 @@ def exported_tracks(recording: Path, tmp: Path) -> list:
     ("mcmcda", "basestation"),
     ("equal-weight", "peer_agent"),
     ("mcmcda", "replay"),
+    ("mcmcda", "recorder"),
 ])
 def test_a_service_killed_mid_run_is_restarted_and_the_rows_are_the_offline_ones(
         grid_slice, offline_rows, tracker, victim, tmp_path):
@@ -270,3 +271,51 @@ def wait_logged(proc, condition, what: str) -> None:
         assert proc.proc.poll() is None or condition(proc.log), f"{proc.name} ended before {what}:\n{proc.log[-3000:]}"
         assert time.monotonic() < deadline, f"no {what}:\n{proc.log[-3000:]}"
         time.sleep(0.05)
+
+
+def rss_kb(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    raise AssertionError(f"no VmRSS for {pid}")
+
+
+def test_oversized_payloads_are_refused_unread_and_memory_stays_flat(zenoh_router, services, tmp_path):
+    """Four bursts of two 10 MB payloads on a sensor's raw key: refused before decoding with
+    one line and counted; the service goes on, and its memory does not grow with the bursts
+    (after the first, which sizes Zenoh's receive buffer once: about 20 MB)."""
+    ds = open_dataset(DARPA3)
+    keys = Keys(ds.deployment.name)
+    session = zenoh.open(client_config([zenoh_router]))
+    progress = threading.Event()
+    transitions = []
+    entities = [
+        session.declare_queryable(keys.deployment(), lambda q: q.reply(keys.deployment(), encode(ds.deployment))),
+        session.declare_subscriber(keys.progress(), lambda s: progress.set()),
+        session.declare_subscriber(keys.transition(), lambda s: transitions.append(str(s.key_expr))),
+    ]
+    agent = services("sensor_agent", "--net", keys.net, endpoint=zenoh_router)
+    try:
+        wait_logged(agent, lambda log: "ready on" in log, "the sensor agent to come up")
+        sensor = ds.deployment.sensors[0].id
+        rss = []
+        for burst in range(4):
+            rss.append(rss_kb(agent.proc.pid))
+            for _ in range(2):
+                session.put(keys.raw(sensor), b"\x00" * (10 * 1024 * 1024))
+            session.put(keys.raw(sensor), encode(RawSample(t=1.0 + burst, sensor=sensor, value=(burst + 1) % 2)))
+            progress.clear()
+            session.put(keys.clock(), encode(Clock(t=1.5 + burst)))
+            assert progress.wait(HUNG), agent.log
+        rss.append(rss_kb(agent.proc.pid))
+        before, after = rss[1], rss[-1]
+    finally:
+        for entity in entities:
+            entity.undeclare()
+        session.close()
+    assert transitions == [keys.transition(sensor)] * 4  # the good samples after them were taken
+    assert agent.stop() == 0
+    lines = [line for line in agent.log.splitlines() if "dropped a bad payload" in line]
+    assert len(lines) == 1 and f"too large: {10 * 1024 * 1024} bytes > 65536 (refused unread)" in lines[0], agent.log
+    assert "8 bad payloads {'too large': 8}" in agent.log
+    assert after - before < 4 * 1024, (before, after)  # kB: far below one of the 10 MB payloads

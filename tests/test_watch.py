@@ -20,6 +20,7 @@ from conftest import REPO, free_port
 
 NET = "test-watch"
 KEYS = Keys(NET)
+HUNG = 120.0  # s: the waits are on events (a line, an exit); only a hung program takes this long
 
 
 class Printer:
@@ -34,14 +35,14 @@ class Printer:
         for line in self.proc.stdout:
             self.lines.put(line.rstrip("\n"))
 
-    def line(self, timeout: float = 10.0) -> str:
+    def line(self, timeout: float = HUNG) -> str:
         return self.lines.get(timeout=timeout)
 
     def interrupt(self, sig: int = signal.SIGINT) -> tuple[int, str]:
         """Send ``sig``; the exit status and stderr (a hang fails the test)."""
         self.proc.send_signal(sig)
         try:
-            _, err = self.proc.communicate(timeout=10)
+            _, err = self.proc.communicate(timeout=HUNG)
         except subprocess.TimeoutExpired:
             self.proc.kill()
             raise
@@ -57,7 +58,7 @@ def bus(zenoh_router):
 
 def publish_when_matched(session: zenoh.Session, key: str, payload: bytes, printer: Printer) -> None:
     publisher = session.declare_publisher(key)
-    deadline = time.monotonic() + 15
+    deadline = time.monotonic() + HUNG
     while not publisher.matching_status.matching:
         assert printer.proc.poll() is None, printer.proc.communicate()[1]
         assert time.monotonic() < deadline, "the printer never subscribed"

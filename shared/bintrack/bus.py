@@ -41,6 +41,8 @@ from .messages import Clock, EndOfStream, Message, MessageError, decode, encode
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_INBOX = 65536
+DEFAULT_MAX_PAYLOAD = 64 * 1024  # bytes; no bintrack message comes near it
+MAX_SENDERS_LOGGED = 1024  # distinct senders of bad payloads named in the log; past that only counted
 PARENT_ENV = "BINTRACK_PARENT_PID"  # set by a supervisor (bintrack up): the service ends when that process does
 STATE_DIR_OPTION = "--state-dir"
 PARENT_CHECK = 1.0  # s between checks that the supervisor is still there
@@ -69,6 +71,8 @@ def add_bus_arguments(parser: argparse.ArgumentParser, *, net_default: str | Non
                        + (f" (default: {net_default})" if net_default else ""))
     group.add_argument("--wait", type=float, default=60.0, metavar="S",
                        help="how long to keep retrying to reach the router, s (default: %(default)s)")
+    group.add_argument("--max-payload", type=int, default=DEFAULT_MAX_PAYLOAD, metavar="BYTES",
+                       help="refuse a sample larger than this before reading it (default: %(default)s)")
     group.add_argument(STATE_DIR_OPTION, metavar="DIR",
                        help="keep a checkpoint of this instance (named by --id) in DIR and resume from it after "
                        "a restart (default: none)")
@@ -155,13 +159,19 @@ class Inbox:
     """Bounded, non-blocking bridge from Zenoh callbacks to one asyncio handler, in arrival order.
 
     At most ``capacity`` items are in flight; past that an item is dropped and counted in
-    ``dropped``. Never blocks a Zenoh thread.
+    ``dropped``. A sample whose payload is larger than ``max_payload`` bytes is refused on the
+    Zenoh thread, before it is copied or decoded, and counted in ``oversized``; ``on_oversized(key,
+    size)`` is then called on the loop. Never blocks a Zenoh thread.
     """
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, capacity: int = DEFAULT_INBOX):
+    def __init__(self, loop: asyncio.AbstractEventLoop, capacity: int = DEFAULT_INBOX,
+                 max_payload: int = DEFAULT_MAX_PAYLOAD, on_oversized: Callable[[str, int], None] | None = None):
         self.loop = loop
         self.capacity = capacity
+        self.max_payload = max_payload
+        self.on_oversized = on_oversized
         self.dropped = 0
+        self.oversized = 0
         self._in_flight = 0
         self._lock = threading.Lock()
         self._closed = False
@@ -176,6 +186,16 @@ class Inbox:
                 handler(item)
 
         def on_zenoh_thread(item):
+            payload = getattr(item, "payload", None)
+            if payload is not None and len(payload) > self.max_payload:
+                with self._lock:
+                    self.oversized += 1
+                if self.on_oversized is not None and not self._closed:
+                    try:
+                        self.loop.call_soon_threadsafe(self.on_oversized, str(item.key_expr), len(payload))
+                    except RuntimeError:
+                        pass
+                return
             with self._lock:
                 if self._closed or self._in_flight >= self.capacity:
                     self.dropped += not self._closed
@@ -198,7 +218,8 @@ class Inbox:
 
 @dataclass
 class BadInput:
-    """Bad payloads seen by a service: counted by reason, logged once per sender."""
+    """Bad payloads seen by a service: counted by reason (the first words, a bounded set),
+    logged once per sender for the first MAX_SENDERS_LOGGED senders."""
 
     service: str
     counts: dict[str, int] = field(default_factory=lambda: defaultdict(int))
@@ -207,8 +228,11 @@ class BadInput:
     def report(self, sender: str, reason: str) -> None:
         kind = reason.split(":")[0]
         self.counts[kind] += 1
-        if sender not in self._logged:
+        if sender not in self._logged and len(self._logged) < MAX_SENDERS_LOGGED:
             self._logged.add(sender)
+            if len(self._logged) == MAX_SENDERS_LOGGED:
+                log.warning("%s: bad payloads from %d senders; further senders are only counted",
+                            self.service, MAX_SENDERS_LOGGED)
             log.warning("%s: dropped a bad payload from %s: %s (further ones from it are only counted)",
                         self.service, sender, reason)
 
@@ -486,7 +510,9 @@ class Service:
         for sig in (signal.SIGINT, signal.SIGTERM):
             self.loop.add_signal_handler(sig, self.stop)
         self._watch_parent()
-        self.inbox = Inbox(self.loop, getattr(self.args, "inbox", DEFAULT_INBOX))
+        limit = getattr(self.args, "max_payload", None) or DEFAULT_MAX_PAYLOAD
+        self.inbox = Inbox(self.loop, getattr(self.args, "inbox", DEFAULT_INBOX), limit,
+                           lambda key, size: self.bad.report(key, f"too large: {size} bytes > {limit} (refused unread)"))
         try:
             config = zenoh_config(self.args)
         except ValueError as exc:

@@ -10,6 +10,7 @@ minus ``--lateness``; a subclass publishes what the tracker returns (``emit``).
 from __future__ import annotations
 
 import math
+import time
 
 import zenoh
 
@@ -19,6 +20,9 @@ from .messages import Clock, Deployment, Message, MessageError, SensorState, Tra
 from .pipeline import TrackerDriver
 from .trackers import Tracker
 from .transitions import SequenceCheck, SourceCheck
+
+CHECKPOINT_INTERVAL = 1.0  # s of wall clock between two checkpoints …
+CHECKPOINT_TICKS = 16  # … or clock ticks, whichever comes first
 
 
 class TransitionConsumer(Service):
@@ -34,13 +38,21 @@ class TransitionConsumer(Service):
         self.fetched: set[tuple[str | None, int | None]] = set()  # fetched from state; may still arrive
         self.newest: dict[str, float] = {}  # event time of the newest transition taken, per sensor
         self.restarts: set[str | None] = set()  # sources seen counting from 1 again (logged once)
+        self.checkpointed_at = -math.inf  # monotonic time of the last checkpoint
+        self.ticks_unsaved = 0
         checkpoint = self.load_checkpoint()
         if checkpoint is not None:
-            (tick, self.driver, self.sequence, self.sources, self.fetched, self.newest, self.restarts,
-             extra) = checkpoint
-            self.restore_extra(extra)
-            log.info("%s: resumed at the clock tick t=%g s; %d transitions sent since fetched from the sensors' state",
-                     self.name, tick, self.fetch_since_received())
+            try:
+                (tick, self.driver, self.sequence, self.sources, self.fetched, self.newest, self.restarts,
+                 extra) = checkpoint
+                self.restore_extra(extra)
+            except (TypeError, ValueError) as exc:  # a checkpoint of another version
+                log.warning("%s: checkpoint not of this version (%s); starting afresh", self.name, exc)
+                self.driver, self.sequence, self.sources = TrackerDriver(tracker), SequenceCheck(), SourceCheck()
+                self.fetched, self.newest, self.restarts = set(), {}, set()
+            else:
+                log.info("%s: resumed at the clock tick t=%g s; %d transitions sent since fetched from the sensors' "
+                         "state", self.name, tick, self.fetch_since_received())
         self.subscribe(self.keys.transition(), self.on_transition)
         self.subscribe(self.keys.progress("sensor_agent"), self.on_agent_progress)
         self.subscribe(self.keys.clock(), self.on_clock)
@@ -51,9 +63,12 @@ class TransitionConsumer(Service):
         raise NotImplementedError
 
     def fetch_since_received(self) -> int:
-        """Fetch from the sensors' state every transition each known sensor agent sent after the
-        last one received in order; how many were taken."""
+        """Fetch from the sensors' state every transition sent after the last one received in
+        order: of each sensor (by ``seq``, from the lowest last seq of all sensors on; the
+        duplicates are left out) and of each known sensor agent; how many were taken."""
         before = len(self.fetched)
+        since = min((self.sequence.last.get(sensor, 0) for sensor in self.sensors), default=0)
+        self.fetch_missed(f"{self.keys.state()}?since={since}")
         for source, received in self.sources.contiguous().items():
             self.fetch_missed(f"{self.keys.state()}?source={source};after={received}")
         return len(self.fetched) - before
@@ -168,9 +183,16 @@ class TransitionConsumer(Service):
             return
         self.emit(self.driver.advance(tick.t - self.args.lateness))
         # after the outputs went out, before acknowledging: a restart resumes at this tick and
-        # fetches the transitions after it from the sensors' state queryables
-        self.save_checkpoint((tick.t, self.driver, self.sequence, self.sources, self.fetched, self.newest, self.restarts,
-                              self.checkpoint_extra()))
+        # fetches the transitions after it from the sensors' state queryables. A tracker's state
+        # can take tens of ms to save, so every CHECKPOINT_INTERVAL s of wall clock or
+        # CHECKPOINT_TICKS ticks, whichever comes first; the outputs a restarted instance sends
+        # again are dropped as duplicates by the receivers (who remember more than that).
+        now = time.monotonic()
+        self.ticks_unsaved += 1
+        if now - self.checkpointed_at >= CHECKPOINT_INTERVAL or self.ticks_unsaved >= CHECKPOINT_TICKS:
+            self.save_checkpoint((tick.t, self.driver, self.sequence, self.sources, self.fetched, self.newest,
+                                  self.restarts, self.checkpoint_extra()))
+            self.checkpointed_at, self.ticks_unsaved = now, 0
         self.report_progress(tick.t)
 
     def on_finish(self, t: float) -> None:

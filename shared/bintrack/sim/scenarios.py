@@ -164,14 +164,16 @@ GRID_JITTER = 0.5
 GRID_DEAD = 6
 GRID_FIELD = Region(xmin=0, ymin=0, xmax=(GRID_SIZE - 1) * GRID_SPACING, ymax=(GRID_SIZE - 1) * GRID_SPACING)
 WALKING_SPEEDS = (1.0, 1.5)
+GRID_LONGEST_WALK = 80.0  # s: the field's diagonal (≈ 78 m) at the slowest walking speed, rounded up
 
 
-def _people(rng: np.random.Generator, people: int) -> list[Trajectory]:
-    """People entering about 10 s apart (person k at 10·k ± 1 s) and walking straight across the
-    grid at 1–1.5 m/s; the last two of the first three cross each other mid-field."""
-    entries = [10.0 * k + rng.uniform(-1.0, 1.0) for k in range(1, people + 1)]
+def _people(rng: np.random.Generator, people: int, spacing: float = 10.0) -> list[Trajectory]:
+    """People entering about ``spacing`` s apart (person k at spacing·k ± 1 s) and walking
+    straight across the grid at 1–1.5 m/s; the last two of the first three cross each other
+    mid-field when they enter close together."""
+    entries = [spacing * k + rng.uniform(-1.0, 1.0) for k in range(1, people + 1)]
     walks: dict[int, Trajectory] = {}
-    if people >= 2:
+    if people >= 2 and spacing == 10.0:
         a, b = (1, 2) if people == 2 else (2, 3)
         walks[a], walks[b] = trajectories.crossing_walks(rng, GRID_FIELD, (entries[a - 1], entries[b - 1]),
                                                          (str(a), str(b)), WALKING_SPEEDS)
@@ -187,7 +189,9 @@ def darpa_grid(seed: int = 0, *, people: int = 3, sensing_range: float = 8.0, pd
     ±0.5 m), 6 of them dead (listed, never report), range 8 m, pd 0.7, pfa 0.05 per sample,
     sampling every 0.5 s at random phases; ``people`` walk across at 1–1.5 m/s entering about
     10 s apart. The field is observed from 0 s for at least 90 s and until 5 s after the last
-    person leaves, with false alarms throughout."""
+    person leaves, with false alarms throughout. A ``duration`` longer than that spreads the
+    entries evenly over it (about (duration − 90 s)/people apart, the last one leaving before
+    the end), so that a long run is tracked all along."""
     _check(people >= 1, f"--people must be at least 1, got {people}")
     _check(math.isfinite(sensing_range) and sensing_range > 0, f"--range must be positive, got {sensing_range}")
     _positive("period", period)
@@ -198,7 +202,9 @@ def darpa_grid(seed: int = 0, *, people: int = 3, sensing_range: float = 8.0, pd
     positions = deployments.grid_positions(layout, GRID_SIZE, GRID_SIZE, GRID_SPACING, GRID_JITTER)
     sensors = deployments.disks_at(positions, sensing_range, period=period, pd=pd, pfa=pfa)
     dead = deployments.dead_nodes(layout, [s.id for s in sensors], GRID_DEAD)
-    walkers = _people(paths, people)
+    # a long --duration spreads the arrivals over it, so that the whole run has people in it
+    spacing = 10.0 if duration is None else max(10.0, (duration - GRID_LONGEST_WALK - 10.0) / people)
+    walkers = _people(paths, people, spacing)
     last_exit = max(w.t_exit for w in walkers)
     if duration is None:
         duration = max(90.0, math.ceil(last_exit + 5.0))
