@@ -41,6 +41,7 @@ log = logging.getLogger("bintrack")
 
 UPSTREAM = ("sensor_agent", "peer_agent", "basestation")
 RESULTS = frozenset({"transition", "estimate", "fusion_reports", "tracks", "laser_objects", "motion_velocity"})
+FLUSH_INTERVAL, FLUSH_TICKS = 1.0, 16  # s of wall clock or clock ticks between two flushes of the file
 RECENT_PER_KEY = 64  # payloads remembered per key of RESULTS, to record a message sent again only once
 WAIT_LOG_INTERVAL = 5.0  # s of wall clock between "still waiting" lines
 
@@ -80,6 +81,7 @@ class Recorder(Service):
         self.last_t = 0.0
         self.last_tracks = float("-inf")  # event time of the newest track set recorded
         self.recent: dict[str, deque[bytes]] = {}
+        self.flushed_at, self.unflushed_ticks = time.monotonic(), 0
         self._changed = asyncio.Event()
 
     async def setup(self) -> None:
@@ -182,7 +184,14 @@ class Recorder(Service):
         if parsed.kind == "tracks":
             self.last_tracks = max(self.last_tracks, t)
         elif parsed.kind == "clock":
-            self.writer.flush()
+            # each flush closes an MCAP chunk (its index stays in memory until the file is
+            # finalised), so not at every tick: every FLUSH_INTERVAL s or FLUSH_TICKS ticks. What
+            # a kill loses since is fetched back for the track sets (tracks?after=T).
+            now = time.monotonic()
+            self.unflushed_ticks += 1
+            if now - self.flushed_at >= FLUSH_INTERVAL or self.unflushed_ticks >= FLUSH_TICKS:
+                self.writer.flush()
+                self.flushed_at, self.unflushed_ticks = now, 0
             self.report_progress(message.t)
         elif parsed.kind == "eos":
             self.eos = message.t

@@ -22,7 +22,8 @@ from bintrack.keys import parse_key
 from bintrack.messages import Clock, EndOfStream, MessageError, RawSample, SensorState, Transition, decode, encode
 from bintrack.transitions import TransitionDetector
 
-HISTORY = 256  # transitions kept per sensor for gap repair
+HISTORY = 256  # transitions kept per sensor for gap repair …
+HISTORY_SPAN = 60.0  # … and no older than this, s of event time behind the clock (memory stays flat)
 QUEUE = 1024  # raw samples queued per sensor
 RETRY = 0.5  # s between asks for replay's recent samples
 
@@ -61,6 +62,11 @@ class HostedSensor:
         if self.agent.args.lose and self.agent.sent % self.agent.args.lose == 0:
             return  # --lose: a lossy link for tests; the receivers must repair the gap
         self.agent.publish(self.key, transition)
+
+    def forget_before(self, t: float) -> None:
+        """Drop the history older than event time ``t`` (s)."""
+        while self.history and self.history[0].t < t:
+            self.history.popleft()
 
     def state(self, since: int | None, after_source_seq: int | None) -> SensorState:
         """Status and seq; ``missed``: transitions with seq > ``since`` or source_seq > ``after_source_seq``."""
@@ -185,6 +191,8 @@ class SensorAgent(Service):
             message = await self.control.get()
             await asyncio.gather(*(h.queue.join() for h in self.hosted.values() if h.queue.qsize()))
             if isinstance(message, Clock):
+                for hosted in self.hosted.values():
+                    hosted.forget_before(message.t - HISTORY_SPAN)
                 self.acked = message.t
                 self._checkpoint(message.t)
                 self.report_progress(message.t, sent=self.sent)

@@ -221,10 +221,12 @@ def start_router(endpoint: str) -> subprocess.Popen:
     return proc
 
 
-def test_router_killed_and_restarted_loses_nothing_at_speed_0(grid_slice, offline_rows, tmp_path, services):
+@pytest.mark.parametrize("speed", [0, pytest.param(1, marks=pytest.mark.slow)])
+def test_router_killed_and_restarted_loses_nothing(grid_slice, offline_rows, tmp_path, services, speed):
     """Services started by hand on a router of their own; the router is killed mid-run and
     started again: every service logs the loss and the return, replay holds its clock
-    meanwhile, and the run ends with the offline rows."""
+    meanwhile (at --speed 1 too: pacing resumes where it stopped, so the outage makes nothing
+    unknowable), and the run ends with the offline rows."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     net = open_dataset(grid_slice).deployment.name
     recording = tmp_path / "run.mcap"
@@ -232,7 +234,7 @@ def test_router_killed_and_restarted_loses_nothing_at_speed_0(grid_slice, offlin
     procs = {c.name: services(c.name, *[a for a in c.args if a != "-e" and a != "tcp/router:7447"],
                               endpoint=endpoint)
              for c in stack_commands(tracker="mcmcda", endpoint="tcp/router:7447", net=net, source=str(grid_slice),
-                                     speed=0, record=str(recording))}
+                                     speed=speed, record=str(recording))}
     killed = threading.Event()
 
     def on_clock(sample) -> None:  # kills the router the moment event time reaches 10 s
@@ -319,3 +321,19 @@ def test_oversized_payloads_are_refused_unread_and_memory_stays_flat(zenoh_route
     assert len(lines) == 1 and f"too large: {10 * 1024 * 1024} bytes > 65536 (refused unread)" in lines[0], agent.log
     assert "8 bad payloads {'too large': 8}" in agent.log
     assert after - before < 4 * 1024, (before, after)  # kB: far below one of the 10 MB payloads
+
+
+def test_up_stops_when_another_stack_of_its_network_joins(grid_slice):
+    """An orphan of an older stack (here a token declared by hand) reconnecting to up's router:
+    up names it and stops, rather than mixing two stacks' messages."""
+    up = Up(str(grid_slice), "--tracker", "mcmcda", "--speed", "1")
+    up.event_time_at_least(1.0)
+    endpoint = next(arg for arg in up.proc.args if arg.startswith("tcp/"))
+    session = zenoh.open(client_config([endpoint]))
+    try:
+        token = session.liveliness().declare_token(Keys("darpa-grid").alive("sensor_agent", "old-1"))
+        assert up.finish() == 1, up.log
+        token.undeclare()
+    finally:
+        session.close()
+    assert "up: another stack of network darpa-grid joined the bus: sensor_agent/old-1; stopped the others" in up.log
