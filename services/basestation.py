@@ -36,7 +36,7 @@ from bintrack.trackers import TRACKER_NAMES, check_options, make_tracker, runs_o
 from bintrack.transition_intake import TransitionConsumer
 
 
-TRACKS_HISTORY = 256  # recent track sets kept for the ``tracks?after=T`` queryable
+TRACKS_HISTORY = 1024  # recent track sets kept for the ``tracks?after=T`` queryable
 RECENT_PER_KEY = 64  # payloads remembered per node to drop the ones a restarted peer agent sends again
 
 

@@ -24,6 +24,7 @@ from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
 from bintrack.bus import client_config
 from bintrack.keys import Keys
 from bintrack.messages import Clock, RawSample, decode, encode
+from bintrack.recording import open_recording
 from bintrack.stack import stack_commands
 
 from conftest import REPO, free_port
@@ -337,3 +338,25 @@ def test_up_stops_when_another_stack_of_its_network_joins(grid_slice):
     finally:
         session.close()
     assert "up: another stack of network darpa-grid joined the bus: sensor_agent/old-1; stopped the others" in up.log
+
+
+def test_recorder_splits_its_files_by_event_time(grid_slice, zenoh_router, services, tmp_path):
+    """--split-duration 10: the 40 s slice goes into run.mcap, run_1.mcap, … each finalised,
+    each spanning at most 10 s of clock ticks, and together holding every raw sample once."""
+    out = tmp_path / "run.mcap"
+    net = open_dataset(grid_slice).deployment.name
+    recorder = services("recorder", "--out", str(out), "--split-duration", "10", "--net", net, endpoint=zenoh_router)
+    replay = services("replay", str(grid_slice), "--speed", "0", "--wait-for", "recorder", endpoint=zenoh_router)
+    assert replay.wait(HUNG) == 0, replay.log
+    assert recorder.wait(HUNG) == 0, recorder.log
+    parts = [out] + sorted(tmp_path.glob("run_*.mcap"), key=lambda p: int(p.stem.split("_")[1]))
+    assert [p.name for p in parts] == ["run.mcap"] + [f"run_{k}.mcap" for k in range(1, len(parts))]
+    assert len(parts) >= 4, recorder.log
+    raw = 0
+    for part in parts:
+        recording = open_recording(part)
+        assert recording.complete, part
+        ticks = [r.t for r in recording.records() if r.kind == "clock"]
+        assert ticks and ticks[-1] - ticks[0] <= 10.0, (part, ticks[0], ticks[-1])
+        raw += sum(r.kind == "raw" for r in recording.records())
+    assert raw == sum(1 for _ in open_dataset(grid_slice).events())
