@@ -42,7 +42,9 @@ from bintrack.recording import KIND_TYPES, RecordingWriter, event_time, open_rec
 log = logging.getLogger("bintrack")
 
 UPSTREAM = ("sensor_agent", "peer_agent", "basestation")
-RESULTS = frozenset({"transition", "estimate", "fusion_reports", "tracks", "laser_objects", "motion_velocity"})
+# outputs a restarted service may send again, recorded once (transitions are not here: they
+# carry their seq, and remembering them per sensor would cost memory that grows for long)
+RESULTS = frozenset({"estimate", "fusion_reports", "tracks", "laser_objects", "motion_velocity"})
 FLUSH_INTERVAL, FLUSH_TICKS = 5.0, 64  # s of wall clock or clock ticks between two flushes of the file
 CHUNK_SIZE = 1024 * 1024  # bytes: few chunks, so that the chunk index kept in memory stays small
 RECENT_PER_KEY = 64  # payloads remembered per key of RESULTS, to record a message sent again only once
