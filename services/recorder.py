@@ -47,6 +47,7 @@ UPSTREAM = ("sensor_agent", "peer_agent", "basestation")
 RESULTS = frozenset({"estimate", "fusion_reports", "tracks", "laser_objects", "motion_velocity"})
 FLUSH_INTERVAL, FLUSH_TICKS = 5.0, 64  # s of wall clock or clock ticks between two flushes of the file
 CHUNK_SIZE = 1024 * 1024  # bytes: few chunks, so that the chunk index kept in memory stays small
+DEDUPE_AFTER_RETURN = 1024  # result messages checked for duplicates after a service came back
 RECENT_PER_KEY = 64  # payloads remembered per key of RESULTS, to record a message sent again only once
 WAIT_LOG_INTERVAL = 5.0  # s of wall clock between "still waiting" lines
 
@@ -108,6 +109,8 @@ class Recorder(Service):
         self.last_t = 0.0
         self.last_tracks = float("-inf")  # event time of the newest track set recorded
         self.recent: dict[str, deque[bytes]] = {}
+        self.gone: set[str] = set()  # alive/ keys of services that went away
+        self.dedupe_left = 0  # result messages still checked for duplicates after a return
         self.flushed_at, self.unflushed_ticks = time.monotonic(), 0
         self.part_start: float | None = None  # event time of the first tick of the current file
         self._changed = asyncio.Event()
@@ -131,6 +134,7 @@ class Recorder(Service):
             self.exit_status = 2
             self.stop()
             return
+        self.writer.flush()  # the header and the deployment are on disk whatever happens next
         self.save_checkpoint({"part": self.part})
         if restarted:
             kept = self._copy(aside)
@@ -180,7 +184,11 @@ class Recorder(Service):
             log.info("recorder: %d track sets published during the outage fetched from the base station", fetched)
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
-        self.upstream.on_liveliness(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+        key, present = str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT
+        self.upstream.on_liveliness(key, present)
+        if present and key in self.gone:  # back after a restart or a router outage
+            self.dedupe_left = DEDUPE_AFTER_RETURN
+        (self.gone.discard if present else self.gone.add)(key)
         self._changed.set()
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -200,9 +208,13 @@ class Recorder(Service):
             return
         payload = sample.payload.to_bytes()
         recent = self.recent.setdefault(key, deque(maxlen=RECENT_PER_KEY)) if parsed.kind in RESULTS else None
-        if recent is not None and payload in recent:  # sent again by a service that restarted from its checkpoint
-            self.bad.report(key, "duplicate: the same message again")
-            return
+        if recent is not None and self.dedupe_left > 0:
+            # an upstream service came back (restart, router): what it sends again is recorded
+            # once. Only then: equal messages can be legitimate (a relay of equal estimates).
+            self.dedupe_left -= 1
+            if payload in recent:
+                self.bad.report(key, "duplicate: the same message again, after a restart")
+                return
         t = event_time(message)
         t = self.last_t if t is None else t
         if parsed.kind == "clock":
@@ -248,6 +260,7 @@ class Recorder(Service):
         self.part += 1
         self.path = part_path(self.args.out, self.part)
         self.writer = RecordingWriter(self.path, self.deployment, self.args.net, chunk_size=CHUNK_SIZE)
+        self.writer.flush()
         self.part_start = t
         self.save_checkpoint({"part": self.part})
         log.info("recorder: recording on into %s", self.path)
