@@ -12,7 +12,9 @@ Schema of every message). One line is printed per track::
     t=12.500 track=0 x=10.00 y=20.00 vx=0.50 vy=-0.10
 
 Run:  pip install eclipse-zenoh msgpack
-      python subscribe_tracks.py [-e tcp/127.0.0.1:7447] [--net default]
+      python subscribe_tracks.py [-e tcp/127.0.0.1:7447] [--net NAME]
+
+Without --net it takes the one network alive on the bus (its services' liveliness tokens).
 Stop with Ctrl-C.
 """
 
@@ -40,11 +42,23 @@ def track_lines(payload):
         raise ValueError(f"not a TrackSet: {type(exc).__name__}: {exc}") from None
 
 
+def the_network(session):
+    """The one network whose services hold liveliness tokens bintrack/<net>/alive/<service>/<id>."""
+    nets = sorted({str(reply.ok.key_expr).split("/")[1]
+                   for reply in session.liveliness().get("bintrack/*/alive/**", timeout=2.0) if reply.ok is not None})
+    if len(nets) != 1:
+        session.close()
+        sys.exit("subscribe_tracks: " + (f"networks alive: {', '.join(nets)}; choose one with --net" if nets
+                                         else "no bintrack network is alive on the bus; give --net"))
+    return nets[0]
+
+
 def main():
     parser = argparse.ArgumentParser(description="Print the live tracks of a bintrack network.")
     parser.add_argument("-e", "--connect", action="append", metavar="ENDPOINT",
                         help="Zenoh router to connect to, repeatable (default: tcp/127.0.0.1:7447)")
-    parser.add_argument("--net", default="default", help="network name, the <net> of bintrack/<net>/tracks")
+    parser.add_argument("--net", help="network name, the <net> of bintrack/<net>/tracks "
+                        "(default: the one network alive on the bus)")
     args = parser.parse_args()
 
     config = zenoh.Config()
@@ -55,11 +69,12 @@ def main():
     # Turn SIGTERM into the same clean exit as Ctrl-C.
     signal.signal(signal.SIGTERM, signal.getsignal(signal.SIGINT))
 
-    key = f"bintrack/{args.net}/tracks"
     try:
         session = zenoh.open(config)
     except zenoh.ZError as exc:
         sys.exit(f"subscribe_tracks: cannot reach {args.connect or 'tcp/127.0.0.1:7447'}: {exc}")
+    net = args.net or the_network(session)
+    key = f"bintrack/{net}/tracks"
     # A ring channel keeps the latest 256 samples and drops older ones if we fall behind,
     # so a slow terminal never blocks Zenoh.
     subscriber = session.declare_subscriber(key, zenoh.handlers.RingChannel(256))

@@ -10,13 +10,15 @@
   ``tracks`` (mcmcda), ``laser/objects`` (adaptive-basis), ``motion/velocity`` (velocity-plane,
   svm, ppr, motion-rw).
 
-The ``tracks`` queryable returns the latest ``TrackSet``.
+The ``tracks`` queryable returns the latest ``TrackSet`` (``tracks?after=T``: the recent ones
+after T, for a recorder that restarted or lost its router).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections import deque
 from dataclasses import replace
 from operator import attrgetter
 
@@ -34,6 +36,10 @@ from bintrack.trackers import TRACKER_NAMES, check_options, make_tracker, runs_o
 from bintrack.live.transition_intake import TransitionConsumer
 
 
+TRACKS_HISTORY = 1024  # recent track sets kept for the ``tracks?after=T`` queryable
+RECENT_PER_KEY = 64  # payloads remembered per node to drop the ones a restarted peer agent sends again
+
+
 class Basestation(TransitionConsumer):
     name = "basestation"
 
@@ -42,6 +48,7 @@ class Basestation(TransitionConsumer):
         if deployment is None:
             return
         self.latest: TrackSet | None = None
+        self.history: deque[TrackSet] = deque(maxlen=TRACKS_HISTORY)
         self.serve(self.keys.tracks(), self.on_tracks_query)
         if not runs_on_peers(self.args.tracker):
             options = tracker_options(self.args)
@@ -58,6 +65,7 @@ class Basestation(TransitionConsumer):
             return
         self.sensors = deployment.by_id()
         self.estimates: ReorderBuffer[LocalEstimate] = ReorderBuffer(tiebreak=attrgetter("node"))
+        self.recent_estimates: dict[str, deque[bytes]] = {}  # per node, its last estimates' payloads
         self.subscribe(self.keys.estimate(), self.on_estimate)
         self.subscribe(self.keys.clock(), self.on_estimate_clock)
         self.follow_end_of_stream(["peer_agent"], lambda t: self.relay(self.estimates.release_all()))
@@ -79,7 +87,16 @@ class Basestation(TransitionConsumer):
 
     def on_estimate(self, sample: zenoh.Sample) -> None:
         estimate = self.valid_estimate(sample, self.args.tracker)
-        if estimate is not None and not self.estimates.push(estimate):
+        if estimate is None:
+            return
+        recent = self.recent_estimates.setdefault(estimate.node, deque(maxlen=RECENT_PER_KEY))
+        payload = sample.payload.to_bytes()
+        if payload in recent:  # sent again by a peer agent that restarted from its checkpoint
+            self.bad.report(str(sample.key_expr), f"duplicate: estimate at t={estimate.t} seen already")
+            return
+        if self.estimates.push(estimate):
+            recent.append(payload)
+        else:
             self.bad.report(str(sample.key_expr),
                             f"late: t={estimate.t} is behind the watermark (lateness {self.args.lateness} s)")
 
@@ -105,6 +122,7 @@ class Basestation(TransitionConsumer):
         for out in outputs:
             if isinstance(out, TrackSet):
                 self.latest = out
+                self.history.append(out)
                 self.publish(self.keys.tracks(), out)
             elif isinstance(out, PositionReports):
                 self.publish(self.keys.fusion_reports(), out)
@@ -121,9 +139,28 @@ class Basestation(TransitionConsumer):
             log.warning("%s", warning)
         self._warned = len(warnings)
 
+    def checkpoint_extra(self):
+        return self.latest
+
+    def restore_extra(self, extra) -> None:
+        self.latest = extra
+
     def on_tracks_query(self, query: zenoh.Query) -> None:
-        if self.latest is not None:
-            query.reply(self.keys.tracks(), encode(self.latest))
+        """The latest ``TrackSet``; ``?after=T``: each of the recent ones later than T (s), in order
+        (for a recorder that lost some)."""
+        after = query.parameters.get("after")
+        if after is None:
+            if self.latest is not None:
+                query.reply(self.keys.tracks(), encode(self.latest))
+            return
+        try:
+            after = float(after)
+        except ValueError:
+            query.reply_err(b"after must be a number of seconds")
+            return
+        for tracks in self.history:
+            if tracks.t > after:
+                query.reply(self.keys.tracks(), encode(tracks))
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,6 +1,7 @@
 """Recorder: records everything of one network into an MCAP file that replay can play.
 
     python -m bintrack.services.recorder --out FILE.mcap [--until eos|stopped]
+        [--split-size BYTES] [--split-duration S]
         [-m MODE] [-e ENDPOINT]… [-l ENDPOINT]… [-c FILE] [--cfg KEY:VALUE]… [--net NAME]
 
 Why MCAP: it is how pub/sub systems record their buses (ROS 2 bags, Foxglove): one channel per
@@ -23,19 +24,31 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
 import time
+from collections import deque
 from pathlib import Path
 
 import zenoh
 
+from bintrack.argtypes import positive_float
 from bintrack.live.bus import Service, UpstreamDone, add_bus_arguments, service_main
 from bintrack.errors import CommandError
 from bintrack.keys import parse_key
-from bintrack.live.recording import KIND_TYPES, RecordingWriter, event_time
+from bintrack.formats import FormatError
+from bintrack.messages import MessageError, TrackSet, decode
+from bintrack.live.recording import KIND_TYPES, RecordingWriter, event_time, open_recording
 
 log = logging.getLogger("bintrack")
 
 UPSTREAM = ("sensor_agent", "peer_agent", "basestation")
+# outputs a restarted service may send again, recorded once (transitions are not here: they
+# carry their seq, and remembering them per sensor would cost memory that grows for long)
+RESULTS = frozenset({"estimate", "fusion_reports", "tracks", "laser_objects", "motion_velocity"})
+FLUSH_INTERVAL, FLUSH_TICKS = 5.0, 64  # s of wall clock or clock ticks between two flushes of the file
+CHUNK_SIZE = 1024 * 1024  # bytes: few chunks, so that the chunk index kept in memory stays small
+DEDUPE_AFTER_RETURN = 1024  # result messages checked for duplicates after a service came back
+RECENT_PER_KEY = 64  # payloads remembered per key of RESULTS, to record a message sent again only once
 WAIT_LOG_INTERVAL = 5.0  # s of wall clock between "still waiting" lines
 
 
@@ -44,8 +57,31 @@ def add_arguments(parser: argparse.ArgumentParser, until_default: str = "eos") -
     parser.add_argument("--until", choices=("eos", "stopped"), default=until_default,
                         help="finalise and exit at the first end of stream once the services upstream are done "
                         "(eos), or record until SIGINT/SIGTERM (stopped) (default: %(default)s)")
+    parser.add_argument("--split-size", type=size_bytes, metavar="BYTES",
+                        help="start a new file once this one holds this many bytes, e.g. 100M "
+                        "(FILE.mcap, then FILE_1.mcap, FILE_2.mcap, …; default: one file)")
+    parser.add_argument("--split-duration", type=positive_float, metavar="S",
+                        help="start a new file once this one spans this much event time, s (as --split-size)")
+    parser.add_argument("--id", help="instance id (default: host-pid)")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     add_bus_arguments(parser)
+
+
+def size_bytes(text: str) -> int:
+    """``123``, ``64K``, ``100M`` or ``2G`` (powers of 1024) as a positive number of bytes (argparse type)."""
+    units = {"K": 1024, "M": 1024**2, "G": 1024**3}
+    try:
+        value = int(float(text[:-1]) * units[text[-1].upper()]) if text[-1:].upper() in units else int(text)
+    except ValueError:
+        value = 0
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"not a positive size in bytes: {text!r} (e.g. 100M)")
+    return value
+
+
+def part_path(out: str, part: int) -> str:
+    """The file of split ``part``: ``out`` itself for part 0, else ``<stem>_<part>.mcap``."""
+    return out if part == 0 else str(Path(out).with_name(f"{Path(out).stem}_{part}.mcap"))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -71,26 +107,88 @@ class Recorder(Service):
         self.upstream = UpstreamDone(UPSTREAM)
         self.eos: float | None = None
         self.last_t = 0.0
+        self.last_tracks = float("-inf")  # event time of the newest track set recorded
+        self.recent: dict[str, deque[bytes]] = {}
+        self.gone: set[str] = set()  # alive/ keys of services that went away
+        self.dedupe_left = 0  # result messages still checked for duplicates after a return
+        self.flushed_at, self.unflushed_ticks = time.monotonic(), 0
+        self.part_start: float | None = None  # event time of the first tick of the current file
         self._changed = asyncio.Event()
 
     async def setup(self) -> None:
         deployment = await self.wait_for_deployment()
         if deployment is None:
             return
+        self.deployment = deployment
+        checkpoint = self.load_checkpoint()
+        self.part = checkpoint.get("part", 0) if isinstance(checkpoint, dict) else 0
+        self.path = part_path(self.args.out, self.part)
+        restarted = checkpoint is not None and Path(self.path).exists()
+        if restarted:  # keep what the previous instance recorded: it is copied into the new file
+            aside = Path(self.path + ".interrupted")
+            os.replace(self.path, aside)
         try:
-            self.writer = RecordingWriter(self.args.out, deployment, self.args.net)
+            self.writer = RecordingWriter(self.path, deployment, self.args.net, chunk_size=CHUNK_SIZE)
         except OSError as exc:
-            log.error("recorder: cannot write %s: %s", self.args.out, exc.strerror or exc)
+            log.error("recorder: cannot write %s: %s", self.path, exc.strerror or exc)
             self.exit_status = 2
             self.stop()
             return
+        self.writer.flush()  # the header and the deployment are on disk whatever happens next
+        self.save_checkpoint({"part": self.part})
+        if restarted:
+            kept = self._copy(aside)
+            aside.unlink()
+            fetched = await asyncio.to_thread(self._fetch_tracks)
+            log.info("recorder: restarted; kept the %d messages recorded before, fetched %d track sets "
+                     "published since from the base station", kept, fetched)
         self._declared.append(self.session.liveliness().declare_subscriber(
             self.keys.alive(), self.inbox.callback(self._on_alive), history=True))
         self.subscribe(self.keys.all(), self._on_sample)
-        log.info("recorder: recording %s into %s", self.keys.all(), self.args.out)
+        log.info("recorder: recording %s into %s", self.keys.all(), self.path)
+
+    def _copy(self, path: Path) -> int:
+        """Copy the readable records of an interrupted recording into this one; how many."""
+        count = 0
+        try:
+            for record in open_recording(path).records():
+                self.writer.write(record.key, record.t, record.payload, record.received_ns)
+                if record.kind == "tracks":
+                    self.last_tracks = max(self.last_tracks, record.t)
+                self.last_t = max(self.last_t, record.t)
+                count += 1
+        except FormatError as exc:
+            log.warning("recorder: %s; kept %d messages of it", exc, count)
+        return count
+
+    def _fetch_tracks(self) -> int:
+        """Record the track sets the base station published after the last one recorded (its
+        ``tracks?after=T`` queryable): those a restart or a router outage kept from us."""
+        count = 0
+        for payload in self.query(f"{self.keys.tracks()}?after={self.last_tracks!r}", timeout=2.0):
+            try:
+                tracks = decode(TrackSet, payload)
+            except MessageError as exc:
+                self.bad.report(self.keys.tracks(), exc.reason)
+                continue
+            if tracks.t > self.last_tracks:
+                self.recent.setdefault(self.keys.tracks(), deque(maxlen=RECENT_PER_KEY)).append(payload)
+                self.writer.write(self.keys.tracks(), tracks.t, payload, time.time_ns())
+                self.last_tracks = tracks.t
+                count += 1
+        return count
+
+    async def on_router_back(self) -> None:
+        if self.writer is not None and not self.writer.closed:
+            fetched = await asyncio.to_thread(self._fetch_tracks)
+            log.info("recorder: %d track sets published during the outage fetched from the base station", fetched)
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
-        self.upstream.on_liveliness(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+        key, present = str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT
+        self.upstream.on_liveliness(key, present)
+        if present and key in self.gone:  # back after a restart or a router outage
+            self.dedupe_left = DEDUPE_AFTER_RETURN
+        (self.gone.discard if present else self.gone.add)(key)
         self._changed.set()
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -108,16 +206,39 @@ class Recorder(Service):
         message = self.decode(cls, sample)
         if message is None:
             return
+        payload = sample.payload.to_bytes()
+        recent = self.recent.setdefault(key, deque(maxlen=RECENT_PER_KEY)) if parsed.kind in RESULTS else None
+        if recent is not None and self.dedupe_left > 0:
+            # an upstream service came back (restart, router): what it sends again is recorded
+            # once. Only then: equal messages can be legitimate (a relay of equal estimates).
+            self.dedupe_left -= 1
+            if payload in recent:
+                self.bad.report(key, "duplicate: the same message again, after a restart")
+                return
         t = event_time(message)
         t = self.last_t if t is None else t
+        if parsed.kind == "clock":
+            self._maybe_split(t)  # a new file starts with a clock tick
         try:
-            self.writer.write(key, t, sample.payload.to_bytes(), time.time_ns())
+            self.writer.write(key, t, payload, time.time_ns())
         except ValueError as exc:
             self.bad.report(key, f"unrecordable: {exc}")
             return
+        if recent is not None:
+            recent.append(payload)
         self.last_t = max(self.last_t, t)
-        if parsed.kind == "clock":
-            self.writer.flush()
+        if parsed.kind == "tracks":
+            self.last_tracks = max(self.last_tracks, t)
+        elif parsed.kind == "clock":
+            # each flush closes an MCAP chunk (its index, an entry per channel, stays in memory
+            # until the file is finalised), so not at every tick: every FLUSH_INTERVAL s or
+            # FLUSH_TICKS ticks. What a kill loses since is fetched back for the track sets
+            # (tracks?after=T); the other messages of that span are missing from the file.
+            now = time.monotonic()
+            self.unflushed_ticks += 1
+            if now - self.flushed_at >= FLUSH_INTERVAL or self.unflushed_ticks >= FLUSH_TICKS:
+                self.writer.flush()
+                self.flushed_at, self.unflushed_ticks = now, 0
             self.report_progress(message.t)
         elif parsed.kind == "eos":
             self.eos = message.t
@@ -125,6 +246,24 @@ class Recorder(Service):
         elif parsed.kind == "done":
             self.upstream.on_done(parsed.service, parsed.instance, message.t)
             self._changed.set()
+
+    def _maybe_split(self, t: float) -> None:
+        """Before the clock tick at ``t`` (so that each file starts with one): finalise the file and
+        go on in the next once it reached --split-size bytes or would span --split-duration s of
+        event time."""
+        if self.part_start is None:
+            self.part_start = t
+        size, span = self.args.split_size, self.args.split_duration
+        if not ((size and Path(self.path).stat().st_size >= size) or (span and t - self.part_start >= span)):
+            return
+        self._finalise()
+        self.part += 1
+        self.path = part_path(self.args.out, self.part)
+        self.writer = RecordingWriter(self.path, self.deployment, self.args.net, chunk_size=CHUNK_SIZE)
+        self.writer.flush()
+        self.part_start = t
+        self.save_checkpoint({"part": self.part})
+        log.info("recorder: recording on into %s", self.path)
 
     def stop(self) -> None:
         super().stop()
@@ -157,7 +296,7 @@ class Recorder(Service):
     def _finalise(self) -> None:
         if self.writer is not None and not self.writer.closed:
             self.writer.close()
-            log.info("recorder: %d messages recorded in %s", self.writer.count, self.args.out)
+            log.info("recorder: %d messages recorded in %s", self.writer.count, self.writer.path)
 
     async def teardown(self) -> None:
         if self.writer is None and self.exit_status == 0:

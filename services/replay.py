@@ -19,7 +19,9 @@ import argparse
 import asyncio
 import heapq
 import logging
+import math
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -66,6 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--keys", action="append", default=[], type=_key_expr, metavar="KEYEXPR",
                         help="replay only samples whose recorded key matches, repeatable, e.g. 'bintrack/*/raw/**' "
                         "(clock ticks are always replayed)")
+    parser.add_argument("--id", help="instance id (default: host-pid)")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     add_bus_arguments(parser, net_default=None)
     parser.epilog = ("--net defaults to the deployment's name for a dataset and to the recorded network for a "
@@ -112,18 +115,41 @@ class Replay(Service):
         self.last_tick: float | None = None
         self.published = 0
         self._changed = asyncio.Event()
+        # (tick before it, key, payload) of the raw samples since the last few ticks, for ``recent``
+        self.recent: deque[tuple[float, str, bytes]] = deque()
+        self.recent_ticks: deque[float] = deque(maxlen=args.max_ahead + 2)
+        self.resume_after: float | None = None
+        self.pauses = 0
 
     # -- bus wiring -------------------------------------------------------------------------
 
     async def setup(self) -> None:
         payload = encode(self.deployment)
         self.serve(self.keys.deployment(), lambda query: query.reply(self.keys.deployment(), payload))
+        self.serve(self.keys.recent(), self._on_recent)
+        checkpoint = self.load_checkpoint()
+        if checkpoint is not None:
+            self.resume_after, self.published = checkpoint["tick"], checkpoint["published"]
         self._declared.append(self.session.liveliness().declare_subscriber(
             self.keys.alive(), self.inbox.callback(self._on_alive)))
         self.subscribe(self.keys.progress(), self._on_progress)
         # The services already up: asked once, after subscribing so that none is missed.
         for sample in await asyncio.to_thread(self._alive_now):
             self._on_alive(sample)
+
+    def _on_recent(self, query: zenoh.Query) -> None:
+        """``control/recent?after=T``: each raw sample published after the tick at T (s), in
+        order, then a ``Clock`` (the last tick published) that ends the answer."""
+        try:
+            after = float(query.parameters.get("after") or "-inf")
+        except ValueError:
+            query.reply_err(b"after must be a number of seconds")
+            return
+        for tick, key, payload in self.recent:
+            if tick >= after:
+                query.reply(self.keys.recent(), payload)
+        # last, the clock tick before the newest sample: the asker knows the answer is complete
+        query.reply(self.keys.recent(), encode(Clock(t=-math.inf if self.last_tick is None else self.last_tick)))
 
     def _alive_now(self) -> list[zenoh.Sample]:
         replies = self.session.liveliness().get(self.keys.alive(), timeout=5.0)
@@ -191,8 +217,41 @@ class Replay(Service):
         elif isinstance(item, TruthRow):
             self._put(self.keys.truth(), encode(TruthSample(t=action.t, target=item.target, x=item.x, y=item.y)))
         else:
-            self._put(self.keys.raw(item.sensor), encode(RawSample(t=action.t, sensor=item.sensor, value=item.value)))
+            key, payload = self.keys.raw(item.sensor), encode(RawSample(t=action.t, sensor=item.sensor, value=item.value))
+            self._put(key, payload)
+            self.recent.append((-math.inf if self.last_tick is None else self.last_tick, key, payload))
         self.published += 1
+
+    def _ticked(self, t: float) -> None:
+        """After the tick at ``t``: forget samples older than any consumer can still need (it has
+        acknowledged a tick at most max_ahead ticks back) and checkpoint the position."""
+        self.last_tick = t
+        self.recent_ticks.append(t)
+        oldest = self.recent_ticks[0]
+        while self.recent and self.recent[0][0] < oldest:
+            self.recent.popleft()
+        self.save_checkpoint({"tick": t, "published": self.published})
+
+    def _missing(self) -> list[str]:
+        """The --wait-for services with no live instance, and the router if it is lost."""
+        missing = [w for w in self.wanted if not any(service == w for service, _ in self.alive)]
+        return missing + ["the router"] if self.router_lost_at is not None else missing
+
+    async def _hold_while_missing(self, t: float) -> bool:
+        """While an awaited service has no live instance (it died, or lost the router), hold the
+        clock; True once all are back (False if stopping)."""
+        if not self._missing():
+            return True
+        gone = ", ".join(self._missing())
+        self.pauses += 1
+        log.warning("replay: %s gone; holding event time at t=%.3f s until it is back", gone, t)
+        started = time.monotonic()
+        if not await self._until(lambda: not self._missing(), lambda: "services " + ", ".join(self._missing())):
+            return False
+        held = time.monotonic() - started
+        self.pacer.hold(held)
+        log.info("replay: %s back after %.1f s; resuming at t=%.3f s", gone, held, t)
+        return True
 
     # -- the run ----------------------------------------------------------------------------
 
@@ -217,6 +276,19 @@ class Replay(Service):
                 pass
         return True
 
+    async def _ready_for(self, action, skip_ack: bool) -> bool:
+        """Wait until every awaited service is live and, for a tick or the end, has acknowledged
+        what it must; False if stopping. (A consumer that dies no longer owes its
+        acknowledgement, so liveness is checked again after it.)"""
+        while True:
+            if not await self._hold_while_missing(action.t):
+                return False
+            if not isinstance(action, Publish) and action.ack is not None and not skip_ack:
+                if not await self._acknowledged(action.ack):
+                    return False
+            if not self._missing():
+                return True
+
     async def _acknowledged(self, ack: float) -> bool:
         return await self._until(lambda: not self.consumers.owing(ack),
                                  lambda: f"progress >= {ack:g} s from "
@@ -224,8 +296,7 @@ class Replay(Service):
 
     async def main(self) -> None:
         if self.wanted:
-            def missing() -> list[str]:
-                return [w for w in self.wanted if not any(service == w for service, _ in self.alive)]
+            missing = self._missing
             if not await self._until(lambda: not missing(), lambda: "services " + ", ".join(missing()),
                                      self.args.ready_timeout):
                 if not self.stopping.is_set():
@@ -240,15 +311,25 @@ class Replay(Service):
             self.exit_status = 2
 
     async def _play(self) -> None:
-        pacer = Pacer(self.args.speed)
+        self.pacer = pacer = Pacer(self.args.speed)
         plan = schedule(self._pass, period=self.args.clock_period, max_ahead=self.args.max_ahead,
                         recorded_ticks=self.recording is not None, loop=self.args.loop)
         control = self._control()
         started = last_said = time.monotonic()
+        skip_ack = False
+        if self.resume_after is not None:
+            log.info("replay: restarted; resuming after the tick at t=%g s (%d samples were published)",
+                     self.resume_after, self.published)
         for action in plan:
-            if not isinstance(action, Publish) and action.ack is not None:
-                if not await self._acknowledged(action.ack):
-                    break
+            if self.resume_after is not None:  # a restart: what the previous instance published is done
+                if isinstance(action, Tick) and action.t >= self.resume_after:
+                    self.resume_after, skip_ack = None, True
+                    self._ticked(action.t)
+                continue
+            if not await self._ready_for(action, skip_ack):
+                break
+            if not isinstance(action, Publish):
+                skip_ack = False  # the progress owed to the previous instance went to it
             if isinstance(action, End):
                 self._put(self.keys.eos(), encode(EndOfStream(t=action.t)), control)
                 log.info("replay: end of stream at t=%g s after %d samples", action.t, self.published)
@@ -265,7 +346,7 @@ class Replay(Service):
                 break
             if isinstance(action, Tick):
                 self._put(self.keys.clock(), encode(Clock(t=action.t)), control)
-                self.last_tick = action.t
+                self._ticked(action.t)
                 await asyncio.sleep(0)  # let signals and progress reports in
             else:
                 self._publish(action)

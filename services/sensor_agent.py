@@ -19,11 +19,13 @@ import zenoh
 from bintrack.live.bus import Service, add_bus_arguments, log, service_main
 from bintrack.formats import Event, check_value
 from bintrack.keys import parse_key
-from bintrack.messages import Clock, EndOfStream, RawSample, SensorState, Transition, encode
+from bintrack.messages import Clock, EndOfStream, MessageError, RawSample, SensorState, Transition, decode, encode
 from bintrack.transition_detector import TransitionDetector
 
-HISTORY = 256  # transitions kept per sensor for gap repair
+HISTORY = 256  # transitions kept per sensor for gap repair …
+HISTORY_SPAN = 60.0  # … and no older than this, s of event time behind the clock (memory stays flat)
 QUEUE = 1024  # raw samples queued per sensor
+RETRY = 0.5  # s between asks for replay's recent samples
 
 
 class HostedSensor:
@@ -61,6 +63,11 @@ class HostedSensor:
             return  # --lose: a lossy link for tests; the receivers must repair the gap
         self.agent.publish(self.key, transition)
 
+    def forget_before(self, t: float) -> None:
+        """Drop the history older than event time ``t`` (s)."""
+        while self.history and self.history[0].t < t:
+            self.history.popleft()
+
     def state(self, since: int | None, after_source_seq: int | None) -> SensorState:
         """Status and seq; ``missed``: transitions with seq > ``since`` or source_seq > ``after_source_seq``."""
         value, seq = self.detector.status(self.id)
@@ -88,7 +95,11 @@ class SensorAgent(Service):
             return
         detector = TransitionDetector(deployment, hosted)
         self.sent = 0
+        self.acked = float("-inf")  # the last clock tick acknowledged
         self.hosted = {sid: HostedSensor(sid, detector, self) for sid in hosted}
+        checkpoint = self.load_checkpoint()
+        if checkpoint is not None and set(checkpoint["sensors"]) == set(self.hosted):
+            await self._resume(checkpoint)
         self.tasks = [asyncio.create_task(h.run(), name=f"sensor {h.id}") for h in self.hosted.values()]
         self.control: asyncio.Queue = asyncio.Queue()
         self.tasks.append(asyncio.create_task(self._control(), name="control"))
@@ -96,6 +107,54 @@ class SensorAgent(Service):
         self.subscribe(self.keys.clock(), lambda s: self._queue_control(Clock, s))
         self.subscribe(self.keys.eos(), lambda s: self._queue_control(EndOfStream, s))
         self.serve(self.keys.state(), self.on_state)
+
+    async def _resume(self, checkpoint: dict) -> None:
+        """Take the state saved at the last clock tick acknowledged (statuses and counters; not
+        the history, so transitions sent before the restart can no longer be fetched from it),
+        then the raw samples replay published after that tick (its ``recent`` queryable): what
+        this sensor agent had when it died, and what it missed while it was down (replay holds
+        the clock meanwhile)."""
+        self.sent = checkpoint["sent"]
+        detector = checkpoint["detector"]
+        for sid, last_t in checkpoint["sensors"].items():
+            hosted = self.hosted[sid]
+            hosted.detector, hosted.last_t = detector, last_t
+        self.acked = checkpoint["tick"]
+        taken = await self._take_recent(newer=False)
+        log.info("%s: resumed at the tick t=%g s with %d transitions sent; %d raw samples since taken from replay",
+                 self.name, checkpoint["tick"], self.sent, taken)
+
+    async def _take_recent(self, newer: bool) -> int:
+        """Handle the raw samples replay published after the last tick acknowledged (its
+        ``recent`` queryable); with ``newer`` only those later than the sensor's last sample
+        (the others arrived). How many were taken."""
+        while True:  # until replay answers (after a router outage it may not be back yet)
+            replies = await asyncio.to_thread(self.query, f"{self.keys.recent()}?after={self.acked!r}", 2.0)
+            if any(_decode(Clock, payload) is not None for payload in replies) or self.stopping.is_set():
+                break
+            log.info("%s: waiting for replay's recent samples", self.name)
+            await asyncio.sleep(RETRY)
+        taken = 0
+        for payload in replies:
+            raw = _decode(RawSample, payload)
+            if raw is None or raw.sensor not in self.hosted:
+                continue
+            hosted = self.hosted[raw.sensor]
+            if raw.t > hosted.last_t or (not newer and raw.t == hosted.last_t):
+                await hosted.queue.join()  # after what is queued already
+                hosted.handle(raw)
+                taken += 1
+        return taken
+
+    async def on_router_back(self) -> None:
+        if getattr(self, "hosted", None):
+            taken = await self._take_recent(newer=True)
+            log.info("%s: %d raw samples published during the outage taken from replay", self.name, taken)
+
+    def _checkpoint(self, tick: float) -> None:
+        detector = next(iter(self.hosted.values())).detector if self.hosted else None
+        self.save_checkpoint({"tick": tick, "sent": self.sent, "detector": detector,
+                              "sensors": {sid: h.last_t for sid, h in self.hosted.items()}})
 
     def on_raw(self, sample: zenoh.Sample) -> None:
         raw = self.decode(RawSample, sample)
@@ -132,6 +191,10 @@ class SensorAgent(Service):
             message = await self.control.get()
             await asyncio.gather(*(h.queue.join() for h in self.hosted.values() if h.queue.qsize()))
             if isinstance(message, Clock):
+                for hosted in self.hosted.values():
+                    hosted.forget_before(message.t - HISTORY_SPAN)
+                self.acked = message.t
+                self._checkpoint(message.t)
                 self.report_progress(message.t, sent=self.sent)
             else:
                 self.report_done(message.t)
@@ -159,6 +222,13 @@ class SensorAgent(Service):
         for task in getattr(self, "tasks", []):
             task.cancel()
         await asyncio.gather(*getattr(self, "tasks", []), return_exceptions=True)
+
+
+def _decode(cls, payload: bytes):
+    try:
+        return decode(cls, payload)
+    except MessageError:
+        return None
 
 
 def _optional_int(text: str | None) -> int | None:

@@ -254,7 +254,7 @@ def probe(names: list[str], endpoint: str, deadline: float) -> dict[str, str]:
                                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=REPO)
                 for name in waiting}
         for name, proc in runs.items():
-            out, _ = proc.communicate(timeout=30)
+            out, _ = proc.communicate(timeout=120)  # only a hung probe takes this long
             last[name] = out.strip()
             if proc.returncode == 0:
                 waiting.remove(name)

@@ -240,8 +240,13 @@ def test_replay_waits_for_each_consumer_to_acknowledge(tmp_path, zenoh_router, s
         wait_until(lambda: ticks == [0.0, 0.5], what="the second tick")
         time.sleep(0.3)
         assert ticks == [0.0, 0.5]
-        token.undeclare()  # a consumer that leaves is no longer waited for
-        token = None
+        token.undeclare()  # an awaited service that leaves: the clock holds until one is back
+        wait_until(lambda: "slow gone; holding event time" in output(replay), what="the hold")
+        assert ticks == [0.0, 0.5]
+        # a new instance is not waited for on the ticks it never saw
+        token = session.liveliness().declare_token("bintrack/tiny/alive/slow/2")
+        wait_until(lambda: ticks == [0.0, 0.5, 1.0], what="the tick after the hold")
+        session.put("bintrack/tiny/control/progress/slow/2", encode(Clock(t=10.0)))
         assert replay.wait(20) == 0, output(replay)
         assert ticks == [0.0, 0.5, 1.0, 1.5, 2.0]
     finally:

@@ -354,6 +354,18 @@ def test_darpa_grid_variations_curving_walks_pairs_stops_and_layout():
     assert not any(s.vx == 0 and s.vy == 0 for w in plain.trajectories for s in w.segments)
 
 
+def test_darpa_grid_spreads_the_arrivals_over_a_long_duration():
+    scenario = build_scenario("darpa-grid", 11, people=10, duration=3600.0)
+    entries = [p.t_entry for p in scenario.trajectories]
+    exits = [p.t_exit for p in scenario.trajectories]
+    assert np.diff(entries) == pytest.approx([(3600 - 90) / 10] * 9, abs=2)  # evenly, ≈ 351 s apart
+    assert max(exits) <= 3600 - 5
+    assert min(entries) < 400 and max(entries) > 3400  # people in every part of the hour
+    # a short --duration keeps the usual spacing (and the shipped datasets their bytes)
+    assert [p.t_entry for p in build_scenario("darpa-grid", 3, people=3, duration=90.0).trajectories] == \
+        [p.t_entry for p in build_scenario("darpa-grid", 3, people=3).trajectories]
+
+
 def test_laser_testbed():
     scenario = build_scenario("laser-testbed", 1, passes=5)
     result = simulate_scenario(scenario, 1)

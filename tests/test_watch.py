@@ -20,6 +20,7 @@ from conftest import REPO, free_port
 
 NET = "test-watch"
 KEYS = Keys(NET)
+HUNG = 120.0  # s: the waits are on events (a line, an exit); only a hung program takes this long
 
 
 class Printer:
@@ -34,14 +35,14 @@ class Printer:
         for line in self.proc.stdout:
             self.lines.put(line.rstrip("\n"))
 
-    def line(self, timeout: float = 10.0) -> str:
+    def line(self, timeout: float = HUNG) -> str:
         return self.lines.get(timeout=timeout)
 
     def interrupt(self, sig: int = signal.SIGINT) -> tuple[int, str]:
         """Send ``sig``; the exit status and stderr (a hang fails the test)."""
         self.proc.send_signal(sig)
         try:
-            _, err = self.proc.communicate(timeout=10)
+            _, err = self.proc.communicate(timeout=HUNG)
         except subprocess.TimeoutExpired:
             self.proc.kill()
             raise
@@ -57,7 +58,7 @@ def bus(zenoh_router):
 
 def publish_when_matched(session: zenoh.Session, key: str, payload: bytes, printer: Printer) -> None:
     publisher = session.declare_publisher(key)
-    deadline = time.monotonic() + 15
+    deadline = time.monotonic() + HUNG
     while not publisher.matching_status.matching:
         assert printer.proc.poll() is None, printer.proc.communicate()[1]
         assert time.monotonic() < deadline, "the printer never subscribed"
@@ -113,3 +114,40 @@ def test_watch_without_router_fails_with_one_line():
                              "--wait", "0.2"], capture_output=True, text=True, timeout=30, cwd=REPO)
     assert result.returncode == 1
     assert result.stderr.splitlines()[-1].startswith("bintrack watch: bintrack client: no Zenoh router reachable")
+
+
+@pytest.mark.parametrize("program", ["watch", "example"])
+def test_without_net_the_one_network_alive_is_taken(zenoh_router, bus, program):
+    token = bus.liveliness().declare_token(KEYS.alive("basestation", "b1"))
+    try:
+        argv = ([sys.executable, "-m", "bintrack.cli", "watch", "-e", zenoh_router] if program == "watch" else
+                [sys.executable, str(REPO / "examples" / "subscribe_tracks.py"), "-e", zenoh_router])
+        printer = Printer(argv)
+        publish_when_matched(bus, KEYS.tracks(), encode(SCAN), printer)
+        assert printer.line().startswith("t=12.500")
+        status, err = printer.interrupt(signal.SIGINT)
+        assert status == 0, err
+    finally:
+        token.undeclare()
+
+
+@pytest.mark.parametrize("program", ["watch", "example"])
+def test_without_net_several_networks_alive_are_listed(zenoh_router, bus, program):
+    tokens = [bus.liveliness().declare_token(Keys(net).alive("sensor_agent", "a1")) for net in ("north", "south")]
+    try:
+        argv = ([sys.executable, "-m", "bintrack.cli", "watch", "-e", zenoh_router] if program == "watch" else
+                [sys.executable, str(REPO / "examples" / "subscribe_tracks.py"), "-e", zenoh_router])
+        result = subprocess.run(argv, capture_output=True, text=True, timeout=HUNG, cwd=REPO)
+    finally:
+        for token in tokens:
+            token.undeclare()
+    assert result.returncode != 0
+    last = result.stderr.strip().splitlines()[-1]
+    assert "north, south" in last and "--net" in last, result.stderr
+
+
+def test_watch_without_net_and_no_network_alive_says_so(zenoh_router):
+    result = subprocess.run([sys.executable, "-m", "bintrack.cli", "watch", "-e", zenoh_router],
+                            capture_output=True, text=True, timeout=HUNG, cwd=REPO)
+    assert result.returncode == 1
+    assert "no bintrack network is alive on the bus" in result.stderr.strip().splitlines()[-1], result.stderr

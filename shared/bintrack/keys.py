@@ -90,6 +90,11 @@ class Keys:
     def eos(self) -> str:
         return f"{self.prefix}/control/eos"
 
+    def recent(self) -> str:
+        """Replay's queryable of the raw samples it published since a clock tick (``?after=T``),
+        for a sensor agent that restarts from its checkpoint."""
+        return f"{self.prefix}/control/recent"
+
     def alive(self, service: str = "*", instance: str = "*") -> str:
         """Liveliness token key of a service instance (``*`` for any)."""
         return f"{self.prefix}/alive/{self._service(service, instance)}"

@@ -3,16 +3,26 @@
 The whole stack on this machine without Docker: a Zenoh router in this process on loopback,
 and every service as a subprocess with the commands docker-compose uses
 (:mod:`bintrack.live.stack`), the map (``bintrack view``) among them unless ``--no-view``.
-Shows live progress; stops everything on Ctrl-C or, with
-``--exit-at-end``, once the replay's end has been processed by every service.
+Shows live progress; stops everything on Ctrl-C, SIGTERM or SIGHUP
+or, with ``--exit-at-end``, once the replay's end has been processed by every service.
+
+Supervision: a service that dies is restarted with the same instance id after a backoff
+(0.5 s, doubling to 30 s; back to 0.5 s once it ran 30 s), with a log line each time; it
+resumes from its checkpoint in a state folder (``--state-dir`` of the services) and from
+what the others hold. A service that exits with status 2 (bad options or data) or fails
+:data:`MAX_QUICK_FAILURES` times in a row stops the stack. The services run in one process
+group and end themselves when ``up`` dies (parent-death check in :mod:`bintrack.live.bus`), so no
+orphan is left. ``up`` refuses to run next to another stack of the same network on its router.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections import Counter
@@ -22,12 +32,12 @@ from pathlib import Path
 import zenoh
 
 from bintrack.argtypes import positive_float
-from bintrack.live.bus import DEFAULT_ENDPOINT, router_config
+from bintrack.live.bus import DEFAULT_ENDPOINT, PARENT_ENV, STATE_DIR_OPTION, router_config
 from bintrack.errors import CommandError
 from bintrack.formats import open_dataset
 from bintrack.keys import Keys, parse_key
 from bintrack.messages import Clock, MessageError, decode
-from bintrack.live.stack import stack_commands
+from bintrack.live.stack import ServiceCommand, stack_commands
 from bintrack.live.secure_profile import secure_up
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_arguments, tracker_options
 from bintrack.trackers import TRACKER_NAMES, check_options as make_tracker_check
@@ -35,6 +45,10 @@ from bintrack.view.map_server import page_url
 
 SHOWN = (("raw", "events"), ("transition", "transitions"), ("estimate", "estimates"), ("tracks", "tracks"))
 STOP_TIMEOUT = 15.0
+BACKOFF_FIRST, BACKOFF_MAX = 0.5, 30.0  # s between a death and the restart
+STABLE_RUN = 30.0  # s a service must run for its backoff to start again from BACKOFF_FIRST
+MAX_QUICK_FAILURES = 8  # deaths in a row, each within STABLE_RUN of its start, before up gives up
+FOREIGN_CHECK = 1.0  # s to wait for liveliness replies of another stack before starting
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -68,10 +82,21 @@ class Monitor:
     """Counts what crosses the bus (from Zenoh callbacks: counters only, no Zenoh calls)."""
 
     keys: Keys
+    ours: set[str] = field(default_factory=set)  # instance ids of this stack's services
     counts: Counter = field(default_factory=Counter)
     event_time: float | None = None
     done: set[str] = field(default_factory=set)
+    foreign: set[str] = field(default_factory=set)  # alive/<service>/<id> keys of another stack
     lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def on_alive(self, sample: zenoh.Sample) -> None:
+        try:
+            parsed = parse_key(str(sample.key_expr))
+        except ValueError:
+            return
+        if sample.kind == zenoh.SampleKind.PUT and parsed.instance not in self.ours:
+            with self.lock:
+                self.foreign.add(f"{parsed.service}/{parsed.instance}")
 
     def on_sample(self, sample: zenoh.Sample) -> None:
         try:
@@ -91,6 +116,59 @@ class Monitor:
     def snapshot(self) -> tuple[Counter, float | None, set[str]]:
         with self.lock:
             return Counter(self.counts), self.event_time, set(self.done)
+
+    def foreign_services(self) -> list[str]:
+        with self.lock:
+            return sorted(self.foreign)
+
+
+class Stopped(Exception):
+    """SIGINT, SIGTERM or SIGHUP arrived."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+@dataclass
+class Supervised:
+    """One service of the stack: its process, and when it is due to be restarted."""
+
+    command: ServiceCommand
+    argv: list[str]
+    proc: subprocess.Popen | None = None
+    started: float = 0.0
+    quick_failures: int = 0
+    restarts: int = 0
+    due: float | None = None
+    finished: bool = False
+
+    @property
+    def name(self) -> str:
+        return self.command.name
+
+    def start(self, env: dict[str, str], group: int | None) -> int:
+        """Start (or restart) the process in process group ``group`` (a new one if None); its pid."""
+        self.proc = subprocess.Popen(self.argv, env=env, process_group=0 if group is None else group)
+        self.started, self.due = time.monotonic(), None
+        return self.proc.pid
+
+    def died(self, code: int, now: float) -> float:
+        """Record a death with status ``code``; the backoff (s) before the restart."""
+        ran = now - self.started
+        self.quick_failures = self.quick_failures + 1 if ran < STABLE_RUN else 1
+        backoff = min(BACKOFF_MAX, BACKOFF_FIRST * 2 ** (self.quick_failures - 1))
+        self.due = now + backoff
+        return backoff
+
+
+def _status(code: int) -> str:
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exited with status {code}"
 
 
 def _progress_line(now: Counter, before: Counter, dt: float, event_time: float | None) -> str:
@@ -112,8 +190,9 @@ def _source_net(source: str | None) -> str | None:
     return open_dataset(path).deployment.name
 
 
-def _stop(procs: dict[str, subprocess.Popen]) -> dict[str, int]:
-    """SIGTERM every child (replay first, agents last), wait, kill what hangs; exit statuses."""
+def _stop(procs: dict[str, subprocess.Popen], group: int | None) -> dict[str, int]:
+    """SIGTERM every child (replay first, agents last), wait, kill what hangs, and last the
+    whole process group (anything a service left behind); exit statuses."""
     for proc in reversed(list(procs.values())):
         if proc.poll() is None:
             proc.send_signal(signal.SIGTERM)
@@ -126,7 +205,27 @@ def _stop(procs: dict[str, subprocess.Popen]) -> dict[str, int]:
             proc.kill()
             status[name] = proc.wait()
             print(f"up: {name} did not stop within {STOP_TIMEOUT:.0f} s and was killed", file=sys.stderr)
+    if group is not None:
+        try:
+            os.killpg(group, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
     return status
+
+
+def _raise_stopped(signum: int, frame) -> None:
+    raise Stopped(signum)
+
+
+def _foreign_now(router: zenoh.Session, keys: Keys, ours: set[str]) -> list[str]:
+    """alive/<service>/<id> of the services of ``keys``' network on the bus that are not ``ours``."""
+    found = []
+    for reply in router.liveliness().get(keys.alive(), timeout=FOREIGN_CHECK):
+        if reply.ok is not None:
+            parsed = parse_key(str(reply.ok.key_expr))
+            if parsed.instance not in ours:
+                found.append(f"{parsed.service}/{parsed.instance}")
+    return sorted(found)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -157,55 +256,101 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"cannot start the router on {args.listen} ({str(exc).split(' at ')[0]}); "
                            "is another one running? choose another with --listen") from None
     keys = Keys(net)
-    monitor = Monitor(keys)
-    subscriber = router.declare_subscriber(keys.all(), monitor.on_sample)
-    procs: dict[str, subprocess.Popen] = {}
-    interrupted = False
+    state_dir = tempfile.TemporaryDirectory(prefix="bintrack-up-")  # the services' checkpoints
+    stack_id = f"up{os.getpid()}"
+    supervised = {c.name: Supervised(c, [*c.argv(sys.executable), "--id", f"{stack_id}-{c.name}",
+                                         STATE_DIR_OPTION, state_dir.name])
+                  for c in commands}
+    monitor = Monitor(keys, ours={f"{stack_id}-{name}" for name in supervised})
+    foreign = _foreign_now(router, keys, monitor.ours)
+    if foreign:
+        router.close()
+        state_dir.cleanup()
+        raise CommandError(f"another stack of network {net} is alive on {args.listen}: {', '.join(foreign)}; "
+                           "stop it first, or use another --listen or --net")
+    entities = [router.declare_subscriber(keys.all(), monitor.on_sample),
+                router.liveliness().declare_subscriber(keys.alive(), monitor.on_alive)]
+    env = {**os.environ, PARENT_ENV: str(os.getpid())}
+    group: int | None = None
+    stopped_by: Stopped | None = None
     failed: str | None = None
+    ended_said = False
     last_stage = "recorder" if args.record else "basestation"
+    handlers = {sig: signal.signal(sig, _raise_stopped) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
-        for command in commands:
-            procs[command.name] = subprocess.Popen(command.argv(sys.executable))
-        print(f"up: router on {args.listen}, network {net}, services: {', '.join(procs)}", file=sys.stderr)
-        if "view" in procs:
+        for service in supervised.values():
+            pid = service.start(env, group)
+            group = pid if group is None else group
+        print(f"up: router on {args.listen}, network {net}, services: {', '.join(supervised)}", file=sys.stderr)
+        if "view" in supervised:
             print(f"up: map on {page_url(args.view_bind, args.view_port)}", file=sys.stderr, flush=True)
         before, t_before = Counter(), time.monotonic()
         while True:
             time.sleep(0.1)
-            for name, proc in procs.items():
-                code = proc.poll()
-                # replay and the recorder end by themselves (status 0) at the end of the stream
-                if code is not None and (code != 0 or name not in ("replay", "recorder")):
-                    failed = f"{name} exited with status {code}"
-                    if name == "view":
-                        failed += f" (is port {args.view_port} taken? choose another with --view-port, or --no-view)"
+            now = time.monotonic()
+            for service in supervised.values():
+                if service.finished:
+                    continue
+                if service.due is not None:
+                    if now >= service.due:
+                        service.restarts += 1
+                        pid = service.start(env, group)
+                        print(f"up: {service.name} restarted (pid {pid}, restart {service.restarts})", file=sys.stderr)
+                    continue
+                code = service.proc.poll()
+                if code is None:
+                    continue
+                if code == 0 and service.name in ("replay", "recorder"):
+                    service.finished = True  # they end by themselves at the end of the stream
+                elif code == 2:
+                    failed = f"{service.name} exited with status 2 (bad options or data)"
+                elif service.quick_failures + 1 >= MAX_QUICK_FAILURES and now - service.started < STABLE_RUN:
+                    failed = f"{service.name} {_status(code)}, {MAX_QUICK_FAILURES} times in a row; giving up"
+                else:
+                    backoff = service.died(code, now)
+                    print(f"up: {service.name} {_status(code)} after {now - service.started:.1f} s; "
+                          f"restarting it in {backoff:g} s", file=sys.stderr)
+            foreign = monitor.foreign_services()
+            if foreign:
+                failed = f"another stack of network {net} joined the bus: {', '.join(foreign)}"
             if failed:
+                if failed.startswith("view "):
+                    failed += f" (is port {args.view_port} taken? choose another with --view-port, or --no-view)"
                 break
             counts, event_time, done = monitor.snapshot()
-            now = time.monotonic()
             if now - t_before >= args.progress_interval:
-                print(_progress_line(counts, before, now - t_before, event_time), file=sys.stderr)
+                if counts != before:
+                    print(_progress_line(counts, before, now - t_before, event_time), file=sys.stderr)
                 before, t_before = counts, now
-            finished = last_stage in done or (last_stage == "recorder" and procs["recorder"].poll() == 0)
+            finished = last_stage in done or (last_stage == "recorder" and supervised["recorder"].finished)
             if args.exit_at_end and finished:
                 if counts != before:
                     print(_progress_line(counts, before, max(now - t_before, 1e-9), event_time), file=sys.stderr)
                 print("up: the end of the replay has been processed; stopping", file=sys.stderr)
                 break
-    except KeyboardInterrupt:
-        interrupted = True
-        print("\nup: stopping", file=sys.stderr)
+            if not ended_said and finished:
+                ended_said = True
+                print("up: the replay has ended and been processed; the services keep running (Ctrl-C to stop)",
+                      file=sys.stderr)
+    except Stopped as exc:
+        stopped_by = exc
+        print(f"\nup: {exc} received; stopping", file=sys.stderr)
     finally:
-        # children got Ctrl-C too when run from a terminal; SIGTERM covers the other cases
-        status = _stop(procs)
-        subscriber.undeclare()
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            signal.signal(sig, signal.SIG_IGN)  # a second signal must not cut the stop short
+        status = _stop({name: s.proc for name, s in supervised.items() if s.proc is not None}, group)
+        for entity in entities:
+            entity.undeclare()
         router.close()
+        state_dir.cleanup()
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
     if failed:
         print(f"up: {failed}; stopped the others", file=sys.stderr)
         return 1
-    bad = {name: code for name, code in status.items() if code not in (0, -signal.SIGTERM, -signal.SIGINT)}
+    bad = {name: code for name, code in status.items()
+           if code not in (0, -signal.SIGTERM, -signal.SIGINT) and supervised[name].due is None}
     if bad:
         print(f"up: services ended with errors: {bad}", file=sys.stderr)
         return 1
-    return 130 if interrupted else 0
-
+    return 128 + stopped_by.signum if stopped_by is not None else 0

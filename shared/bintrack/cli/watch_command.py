@@ -3,7 +3,8 @@
 ``--what tracks`` (default) prints each TrackSet, ``estimates`` each LocalEstimate and
 ``transitions`` each Transition. Positions are in deployment units, velocities in units/s,
 times in s of event time. Payloads that do not decode are skipped, reported once per sender
-on stderr, and counted; the counts are reported at the end.
+on stderr, and counted; the counts are reported at the end. Without ``--net`` it watches the
+one network alive on the bus, and lists them if there are several.
 """
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ WHAT = ("tracks", "estimates", "transitions")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--what", choices=WHAT, default="tracks",
                         help="which messages to print (default: %(default)s)")
-    add_bus_arguments(parser)
+    add_bus_arguments(parser, net_default=None)
+    parser.epilog = "Without --net, the one network alive on the bus (the alive ones are listed if several)."
 
 
 def _num(value: float | None, digits: int = 2) -> str:

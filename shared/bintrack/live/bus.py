@@ -23,6 +23,7 @@ import asyncio
 import json
 import logging
 import os
+import pickle
 import signal
 import socket
 import threading
@@ -41,6 +42,11 @@ from bintrack.messages import Clock, EndOfStream, Message, MessageError, decode,
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_INBOX = 65536
+DEFAULT_MAX_PAYLOAD = 64 * 1024  # bytes; no bintrack message comes near it
+MAX_SENDERS_LOGGED = 1024  # distinct senders of bad payloads named in the log; past that only counted
+PARENT_ENV = "BINTRACK_PARENT_PID"  # set by a supervisor (bintrack up): the service ends when that process does
+STATE_DIR_OPTION = "--state-dir"
+PARENT_CHECK = 1.0  # s between checks that the supervisor is still there
 
 log = logging.getLogger("bintrack")
 
@@ -66,6 +72,11 @@ def add_bus_arguments(parser: argparse.ArgumentParser, *, net_default: str | Non
                        + (f" (default: {net_default})" if net_default else ""))
     group.add_argument("--wait", type=float, default=60.0, metavar="S",
                        help="how long to keep retrying to reach the router, s (default: %(default)s)")
+    group.add_argument("--max-payload", type=int, default=DEFAULT_MAX_PAYLOAD, metavar="BYTES",
+                       help="refuse a sample larger than this before reading it (default: %(default)s)")
+    group.add_argument(STATE_DIR_OPTION, metavar="DIR",
+                       help="keep a checkpoint of this instance (named by --id) in DIR and resume from it after "
+                       "a restart (default: none)")
 
 
 def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
@@ -149,13 +160,19 @@ class Inbox:
     """Bounded, non-blocking bridge from Zenoh callbacks to one asyncio handler, in arrival order.
 
     At most ``capacity`` items are in flight; past that an item is dropped and counted in
-    ``dropped``. Never blocks a Zenoh thread.
+    ``dropped``. A sample whose payload is larger than ``max_payload`` bytes is refused on the
+    Zenoh thread, before it is copied or decoded, and counted in ``oversized``; ``on_oversized(key,
+    size)`` is then called on the loop. Never blocks a Zenoh thread.
     """
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, capacity: int = DEFAULT_INBOX):
+    def __init__(self, loop: asyncio.AbstractEventLoop, capacity: int = DEFAULT_INBOX,
+                 max_payload: int = DEFAULT_MAX_PAYLOAD, on_oversized: Callable[[str, int], None] | None = None):
         self.loop = loop
         self.capacity = capacity
+        self.max_payload = max_payload
+        self.on_oversized = on_oversized
         self.dropped = 0
+        self.oversized = 0
         self._in_flight = 0
         self._lock = threading.Lock()
         self._closed = False
@@ -170,6 +187,16 @@ class Inbox:
                 handler(item)
 
         def on_zenoh_thread(item):
+            payload = getattr(item, "payload", None)
+            if payload is not None and len(payload) > self.max_payload:
+                with self._lock:
+                    self.oversized += 1
+                if self.on_oversized is not None and not self._closed:
+                    try:
+                        self.loop.call_soon_threadsafe(self.on_oversized, str(item.key_expr), len(payload))
+                    except RuntimeError:
+                        pass
+                return
             with self._lock:
                 if self._closed or self._in_flight >= self.capacity:
                     self.dropped += not self._closed
@@ -192,7 +219,8 @@ class Inbox:
 
 @dataclass
 class BadInput:
-    """Bad payloads seen by a service: counted by reason, logged once per sender."""
+    """Bad payloads seen by a service: counted by reason (the first words, a bounded set),
+    logged once per sender for the first MAX_SENDERS_LOGGED senders."""
 
     service: str
     counts: dict[str, int] = field(default_factory=lambda: defaultdict(int))
@@ -201,8 +229,11 @@ class BadInput:
     def report(self, sender: str, reason: str) -> None:
         kind = reason.split(":")[0]
         self.counts[kind] += 1
-        if sender not in self._logged:
+        if sender not in self._logged and len(self._logged) < MAX_SENDERS_LOGGED:
             self._logged.add(sender)
+            if len(self._logged) == MAX_SENDERS_LOGGED:
+                log.warning("%s: bad payloads from %d senders; further senders are only counted",
+                            self.service, MAX_SENDERS_LOGGED)
             log.warning("%s: dropped a bad payload from %s: %s (further ones from it are only counted)",
                         self.service, sender, reason)
 
@@ -234,6 +265,8 @@ class Service:
         self._network_subscriber = None
         self._token = None
         self.exit_status = 0
+        self.routers: set[str] = set()  # the routers this session is connected to
+        self.router_lost_at: float | None = None  # monotonic time the last router went, while none is back
 
     # -- to override ---------------------------------------------------------------------
 
@@ -246,6 +279,12 @@ class Service:
 
     async def teardown(self) -> None:
         """Last words before the session closes."""
+
+    def on_router_lost(self) -> None:
+        """The session lost its last router (called on the loop; the token is withdrawn)."""
+
+    async def on_router_back(self) -> None:
+        """A router is back after a loss: fetch what went missing (the token is declared after)."""
 
     # -- helpers ---------------------------------------------------------------------------
 
@@ -351,9 +390,11 @@ class Service:
         self.subscribe(self.keys.eos(), on_eos)
 
     def query(self, key_expr: str, timeout: float = 2.0) -> list[bytes]:
-        """Payloads of the replies to a get on ``key_expr`` (blocking; call via to_thread)."""
+        """Payloads of every reply to a get on ``key_expr``, in order (no consolidation: replies
+        on one key are all kept); blocking, call via to_thread off setup."""
         assert self.session is not None
-        return [r.ok.payload.to_bytes() for r in self.session.get(key_expr, timeout=timeout) if r.ok is not None]
+        replies = self.session.get(key_expr, timeout=timeout, consolidation=zenoh.ConsolidationMode.NONE)
+        return [r.ok.payload.to_bytes() for r in replies if r.ok is not None]
 
     async def wait_for_deployment(self):
         """The deployment from the ``deployment`` queryable, retried until it answers."""
@@ -374,11 +415,108 @@ class Service:
 
     # -- lifecycle -------------------------------------------------------------------------
 
+    def checkpoint_path(self) -> str | None:
+        """Where this instance keeps its checkpoint (``--state-dir``/<service>-<id>.pickle), or None."""
+        folder = getattr(self.args, "state_dir", None)
+        return None if not folder else os.path.join(folder, f"{self.name}-{self.instance}.pickle")
+
+    def load_checkpoint(self):
+        """The object saved by :meth:`save_checkpoint` before a restart, or None (logged)."""
+        path = self.checkpoint_path()
+        if path is None or not os.path.exists(path):
+            return None
+        try:
+            with open(path, "rb") as handle:
+                state = pickle.load(handle)
+        except (OSError, pickle.UnpicklingError, EOFError, AttributeError) as exc:
+            log.warning("%s: checkpoint %s unreadable (%s); starting afresh", self.name, path, exc)
+            return None
+        log.info("%s %s: restarted; resuming from its checkpoint", self.name, self.instance)
+        return state
+
+    def save_checkpoint(self, state) -> None:
+        """Save ``state`` atomically (written aside, then renamed) if ``--state-dir`` is set."""
+        path = self.checkpoint_path()
+        if path is None:
+            return
+        with open(path + ".tmp", "wb") as handle:
+            pickle.dump(state, handle, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(path + ".tmp", path)
+
+    def _watch_router(self) -> None:
+        """Log the loss and return of the router (Zenoh transport events). While it is lost the
+        liveliness token is withdrawn, so replay holds its clock; once it is back the service
+        fetches what it missed (:meth:`on_router_back`) and declares its token again."""
+        self.routers = {str(zid) for zid in self.session.info.routers_zid()}
+
+        def on_event(event) -> None:  # a Zenoh thread: hand over to the loop, nothing else
+            if str(event.transport.whatami).lower() == "router":
+                try:
+                    self.loop.call_soon_threadsafe(self._router_event, event.kind == zenoh.SampleKind.PUT,
+                                                   str(event.transport.zid))
+                except RuntimeError:  # loop closed during shutdown
+                    pass
+
+        self._declared.append(self.session.info.declare_transport_events_listener(on_event, history=False))
+
+    def _router_event(self, connected: bool, zid: str) -> None:
+        if self.stopping.is_set():
+            return
+        if connected:
+            self.routers.add(zid)
+            if self.router_lost_at is not None:
+                log.warning("%s: router %s reached again after %.1f s", self.name, zid[:8],
+                            time.monotonic() - self.router_lost_at)
+                self.router_lost_at = None
+                asyncio.ensure_future(self._recover())
+            return
+        self.routers.discard(zid)
+        if self.routers or self.router_lost_at is not None:
+            return
+        self.router_lost_at = time.monotonic()
+        log.warning("%s: lost its router %s; waiting for it to come back", self.name, zid[:8])
+        if self._token is not None:
+            self._token.undeclare()
+            self._token = None
+            self._withdrawn = True
+        self.on_router_lost()
+
+    async def _recover(self) -> None:
+        await self.on_router_back()
+        if getattr(self, "_withdrawn", False) and self.router_lost_at is None and not self.stopping.is_set():
+            self._withdrawn = False
+            self._token = self.session.liveliness().declare_token(self.keys.alive(self.name, self.instance))
+
+    def _watch_parent(self) -> None:
+        """End with the supervisor: the kernel sends SIGTERM when it dies (Linux), and a check
+        every PARENT_CHECK s covers the rest (a service re-parented is an orphan)."""
+        parent = os.environ.get(PARENT_ENV)
+        if not parent:
+            return
+        try:
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+
+        def check() -> None:
+            if os.getppid() != int(parent):
+                log.warning("%s: its supervisor (pid %s) is gone; stopping", self.name, parent)
+                self.stop()
+            elif not self.stopping.is_set():
+                self.loop.call_later(PARENT_CHECK, check)
+
+        check()
+
     async def _run(self) -> int:
         self.loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
             self.loop.add_signal_handler(sig, self.stop)
-        self.inbox = Inbox(self.loop, getattr(self.args, "inbox", DEFAULT_INBOX))
+        self._watch_parent()
+        limit = getattr(self.args, "max_payload", None) or DEFAULT_MAX_PAYLOAD
+        self.inbox = Inbox(self.loop, getattr(self.args, "inbox", DEFAULT_INBOX), limit,
+                           lambda key, size: self.bad.report(key, f"too large: {size} bytes > {limit} (refused unread)"))
         try:
             config = zenoh_config(self.args)
         except ValueError as exc:
@@ -390,6 +528,7 @@ class Service:
             log.error("%s", exc)
             return 1
         try:
+            self._watch_router()
             try:
                 await self.setup()
             except CommandError as exc:  # the deployment does not suit this service's options

@@ -7,7 +7,7 @@ validated messages (:mod:`bintrack.messages`)::
     from bintrack.client import BintrackClient
 
     async def main():
-        async with BintrackClient(net="default", connect=["tcp/127.0.0.1:7447"]) as c:
+        async with BintrackClient(connect=["tcp/127.0.0.1:7447"]) as c:   # net: the one alive
             print(await c.latest_tracks(timeout=2.0))      # the base station's latest TrackSet, or None
             async for scan in c.tracks():                   # every TrackSet from now on
                 for track in scan.tracks:
@@ -37,7 +37,7 @@ from typing import Generic, TypeVar
 import zenoh
 
 from bintrack.live.bus import DEFAULT_INBOX, BadInput, Inbox, open_session, zenoh_config
-from bintrack.keys import Keys, parse_key
+from bintrack.keys import ROOT, Keys, parse_key
 from bintrack.messages import LocalEstimate, Message, MessageError, TrackSet, Transition, decode
 
 DEFAULT_CAPACITY = 1024
@@ -45,6 +45,30 @@ DEFAULT_CAPACITY = 1024
 log = logging.getLogger("bintrack")
 
 M = TypeVar("M", bound=Message)
+
+
+def alive_networks(session: zenoh.Session, timeout: float = 2.0) -> list[str]:
+    """The networks with at least one service holding its liveliness token
+    (``bintrack/<net>/alive/…``) on the bus, sorted (blocking)."""
+    nets = set()
+    for reply in session.liveliness().get(f"{ROOT}/*/alive/**", timeout=timeout):
+        if reply.ok is not None:
+            try:
+                nets.add(parse_key(str(reply.ok.key_expr)).net)
+            except ValueError:
+                continue
+    return sorted(nets)
+
+
+def the_network(session: zenoh.Session, timeout: float = 2.0) -> str:
+    """The one network alive on the bus; ValueError (one line) if there is none or several."""
+    nets = alive_networks(session, timeout)
+    if len(nets) == 1:
+        return nets[0]
+    if not nets:
+        raise ValueError("no bintrack network is alive on the bus (no token under bintrack/*/alive); "
+                         "start one (bintrack up) or give --net")
+    raise ValueError(f"{len(nets)} networks are alive on the bus: {', '.join(nets)}; choose one with --net")
 
 
 class Subscription(Generic[M]):
@@ -136,15 +160,17 @@ class BintrackClient:
             async for estimate in c.estimates():
                 print(estimate.node, estimate.x, estimate.y)
 
-    Opening raises ``ValueError`` for a bad configuration and ``ConnectionError`` when no
-    router answers within ``wait`` seconds.
+    Without ``net`` the client takes, when it opens, the one network alive on the bus (services
+    holding liveliness tokens under ``bintrack/<net>/alive``). Opening raises ``ValueError`` for a
+    bad configuration, or when no network or several are alive and ``net`` is not given (naming
+    them), and ``ConnectionError`` when no router answers within ``wait`` seconds.
     """
 
-    def __init__(self, net: str = "default", connect: Iterable[str] | None = None, *,
+    def __init__(self, net: str | None = None, connect: Iterable[str] | None = None, *,
                  mode: str | None = None, listen: Iterable[str] = (), config: str | None = None,
                  cfg: Iterable[str] = (), wait: float = 10.0, capacity: int = DEFAULT_CAPACITY,
                  inbox: int = DEFAULT_INBOX):
-        self.keys = Keys(net)
+        self.keys: Keys | None = None if net is None else Keys(net)  # net None: found at open
         self.capacity = capacity
         self.wait = wait
         self.bad = BadInput("client")
@@ -171,6 +197,12 @@ class BintrackClient:
         config = zenoh_config(self._options)
         self._inbox = Inbox(asyncio.get_running_loop(), self._inbox_capacity)
         self._session = await asyncio.to_thread(open_session, config, self.wait, "bintrack client")
+        if self.keys is None:
+            try:
+                self.keys = Keys(await asyncio.to_thread(the_network, self._session))
+            except ValueError:
+                await self.close()
+                raise
         return self
 
     async def close(self) -> None:

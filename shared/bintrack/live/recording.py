@@ -194,9 +194,10 @@ class RecordingWriter:
         return channel
 
     def flush(self) -> None:
-        """Hand every finished chunk to the operating system (the open chunk stays in memory)."""
+        """Finish the open chunk and hand everything to the operating system: what was written
+        so far survives the writer's process being killed."""
         if not self.closed:
-            self._handle.flush()
+            self._writer.flush()
 
     def close(self) -> None:
         """Finalise the file: the open chunk, the summary and the footer."""

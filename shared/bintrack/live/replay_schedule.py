@@ -126,6 +126,12 @@ class Pacer:
         self.speed = speed
         self._origin: tuple[float, float] | None = None
 
+    def hold(self, seconds: float) -> None:
+        """The clock was held ``seconds`` (wall clock): event time resumes where it stopped."""
+        if self._origin is not None:
+            t0, wall0 = self._origin
+            self._origin = (t0, wall0 + seconds)
+
     def delay(self, t: float, now: float) -> float:
         """Seconds to wait, from wall-clock time ``now`` (s, monotonic), before event time ``t``
         (s) is due; 0 when it is due already (after a stall, replay catches up)."""

@@ -57,6 +57,10 @@ class SourceCheck:
         self._contiguous.pop(source, None)
         self._beyond.pop(source, None)
 
+    def contiguous(self) -> dict[str, int]:
+        """source → the highest ``source_seq`` up to which every transition of it was received."""
+        return dict(self._contiguous)
+
     def first_missing(self, source: str, sent: int) -> int | None:
         """The lowest ``source_seq`` ≤ ``sent`` not received from ``source``, or None."""
         n = self._contiguous.get(source, 0)

@@ -46,7 +46,9 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
         extra = (*tracker_args, *(("--estimates", estimates) if estimates is not None else ()))
         services.append(ServiceCommand("basestation", ("--tracker", tracker, *extra, *bus)))
     if record is not None:
-        services.append(ServiceCommand("recorder", ("--out", record, *bus)))
+        # a looping replay never ends: record across the loops until stopped
+        until = ("--until", "stopped") if loop and source is not None else ()
+        services.append(ServiceCommand("recorder", ("--out", record, *until, *bus)))
     if view_port is not None:
         services.append(ServiceCommand("view", ("--port", str(view_port), "--bind", view_bind, *bus)))
     if source is not None:

@@ -10,6 +10,7 @@ minus ``--lateness``; a subclass publishes what the tracker returns (``emit``).
 from __future__ import annotations
 
 import math
+import time
 
 import zenoh
 
@@ -19,6 +20,9 @@ from bintrack.messages import Clock, Deployment, Message, MessageError, SensorSt
 from bintrack.pipeline import TrackerDriver
 from bintrack.trackers import Tracker
 from bintrack.live.sequence_checks import SequenceCheck, SourceCheck
+
+CHECKPOINT_INTERVAL = 1.0  # s of wall clock between two checkpoints …
+CHECKPOINT_TICKS = 16  # … or clock ticks, whichever comes first
 
 
 class TransitionConsumer(Service):
@@ -34,6 +38,21 @@ class TransitionConsumer(Service):
         self.fetched: set[tuple[str | None, int | None]] = set()  # fetched from state; may still arrive
         self.newest: dict[str, float] = {}  # event time of the newest transition taken, per sensor
         self.restarts: set[str | None] = set()  # sources seen counting from 1 again (logged once)
+        self.checkpointed_at = -math.inf  # monotonic time of the last checkpoint
+        self.ticks_unsaved = 0
+        checkpoint = self.load_checkpoint()
+        if checkpoint is not None:
+            try:
+                (tick, self.driver, self.sequence, self.sources, self.fetched, self.newest, self.restarts,
+                 extra) = checkpoint
+                self.restore_extra(extra)
+            except (TypeError, ValueError) as exc:  # a checkpoint of another version
+                log.warning("%s: checkpoint not of this version (%s); starting afresh", self.name, exc)
+                self.driver, self.sequence, self.sources = TrackerDriver(tracker), SequenceCheck(), SourceCheck()
+                self.fetched, self.newest, self.restarts = set(), {}, set()
+            else:
+                log.info("%s: resumed at the clock tick t=%g s; %d transitions sent since fetched from the sensors' "
+                         "state", self.name, tick, self.fetch_since_received())
         self.subscribe(self.keys.transition(), self.on_transition)
         self.subscribe(self.keys.progress("sensor_agent"), self.on_agent_progress)
         self.subscribe(self.keys.clock(), self.on_clock)
@@ -42,6 +61,29 @@ class TransitionConsumer(Service):
     def emit(self, outputs: list[Message]) -> None:
         """Publish the tracker's outputs."""
         raise NotImplementedError
+
+    def fetch_since_received(self) -> int:
+        """Fetch from the sensors' state every transition sent after the last one received in
+        order: of each sensor (by ``seq``, from the lowest last seq of all sensors on; the
+        duplicates are left out) and of each known sensor agent; how many were taken."""
+        before = len(self.fetched)
+        since = min((self.sequence.last.get(sensor, 0) for sensor in self.sensors), default=0)
+        self.fetch_missed(f"{self.keys.state()}?since={since}")
+        for source, received in self.sources.contiguous().items():
+            self.fetch_missed(f"{self.keys.state()}?source={source};after={received}")
+        return len(self.fetched) - before
+
+    async def on_router_back(self) -> None:
+        if hasattr(self, "sources"):
+            log.info("%s: %d transitions sent during the outage fetched from the sensors' state",
+                     self.name, self.fetch_since_received())
+
+    def checkpoint_extra(self):
+        """What a subclass adds to the checkpoint taken at each clock tick."""
+        return None
+
+    def restore_extra(self, extra) -> None:
+        """Take back what :meth:`checkpoint_extra` gave."""
 
     def on_transition(self, sample: zenoh.Sample) -> None:
         transition = self.decode(Transition, sample)
@@ -140,6 +182,17 @@ class TransitionConsumer(Service):
         if tick is None:
             return
         self.emit(self.driver.advance(tick.t - self.args.lateness))
+        # after the outputs went out, before acknowledging: a restart resumes at this tick and
+        # fetches the transitions after it from the sensors' state queryables. A tracker's state
+        # can take tens of ms to save, so every CHECKPOINT_INTERVAL s of wall clock or
+        # CHECKPOINT_TICKS ticks, whichever comes first; the outputs a restarted instance sends
+        # again are dropped as duplicates by the receivers (who remember more than that).
+        now = time.monotonic()
+        self.ticks_unsaved += 1
+        if now - self.checkpointed_at >= CHECKPOINT_INTERVAL or self.ticks_unsaved >= CHECKPOINT_TICKS:
+            self.save_checkpoint((tick.t, self.driver, self.sequence, self.sources, self.fetched, self.newest,
+                                  self.restarts, self.checkpoint_extra()))
+            self.checkpointed_at, self.ticks_unsaved = now, 0
         self.report_progress(tick.t)
 
     def on_finish(self, t: float) -> None:

@@ -177,9 +177,9 @@ def _crossing_pairs(people: int) -> list[tuple[int, int]]:
 
 
 def _people(rng: np.random.Generator, extra: np.random.Generator, people: int, field: Region, entry_gap: float,
-            walk: str, crossings: int, pairs: int, stops: int) -> list[Trajectory]:
-    """People entering ``entry_gap`` s apart (person k at gap·k ± gap/10 s) and walking across
-    the field at 1–1.5 m/s.
+            walk: str, crossings: int, pairs: int, stops: int, spacing: float | None = None) -> list[Trajectory]:
+    """People entering ``spacing`` s apart (default ``entry_gap``; person k at spacing·k ±
+    entry_gap/10 s) and walking across the field at 1–1.5 m/s.
 
     ``crossings`` pairs cross each other mid-field: with the default one, the last two of the
     first three (persons 1 and 2 when there are two); further crossings are persons (4, 5),
@@ -188,7 +188,8 @@ def _people(rng: np.random.Generator, extra: np.random.Generator, people: int, f
     pairs: the last people walk 2–5 m beside the person before them. ``stops`` people (drawn
     at random) stop for 5–15 s somewhere along their walk. Every draw beyond the default
     scenario's comes from ``extra``, so the defaults give the same people as before."""
-    entries = [entry_gap * k + rng.uniform(-1.0, 1.0) * (entry_gap / 10.0) for k in range(1, people + 1)]
+    spacing = entry_gap if spacing is None else spacing
+    entries = [spacing * k + rng.uniform(-1.0, 1.0) * (entry_gap / 10.0) for k in range(1, people + 1)]
     walks: dict[int, Trajectory] = {}
     for a, b in _crossing_pairs(people)[:crossings]:
         walks[a], walks[b] = trajectories.crossing_walks(rng, field, (entries[a - 1], entries[b - 1]),
@@ -217,7 +218,9 @@ def darpa_grid(seed: int = 0, *, people: int = 3, sensing_range: float = 8.0, pd
     ±0.5 m), 6 of them dead (listed, never report), range 8 m, pd 0.7, pfa 0.05 per sample,
     sampling every 0.5 s at random phases; ``people`` walk across at 1–1.5 m/s entering about
     10 s apart. The field is observed from 0 s for at least 90 s and until 5 s after the last
-    person leaves, with false alarms throughout.
+    person leaves, with false alarms throughout. A ``duration`` longer than that spreads the
+    entries evenly over it (about (duration − 90 s)/people apart, the last one leaving before
+    the end), so that a long run is tracked all along (with no crossings then).
 
     Variations (defaults give the scenario above): ``grid`` nodes per side, ``jitter`` (m),
     ``dead`` nodes, ``entry_gap`` (s between entries), ``walk`` straight|curving, ``crossings``
@@ -246,8 +249,12 @@ def darpa_grid(seed: int = 0, *, people: int = 3, sensing_range: float = 8.0, pd
     positions = deployments.grid_positions(layout, grid, grid, GRID_SPACING, jitter)
     sensors = deployments.disks_at(positions, sensing_range, period=period, pd=pd, pfa=pfa)
     dead_ids = deployments.dead_nodes(layout, [s.id for s in sensors], dead)
+    # a long --duration spreads the arrivals over it, so that the whole run has people in it
+    longest_walk = math.ceil(math.hypot(field.xmax - field.xmin, field.ymax - field.ymin) / WALKING_SPEEDS[0] + 2.0)
+    spacing = entry_gap if duration is None else max(entry_gap, (duration - longest_walk - entry_gap) / people)
     try:
-        walkers = _people(paths, extra, people, field, entry_gap, walk, crossings, pairs, stops)
+        walkers = _people(paths, extra, people, field, entry_gap, walk, crossings if spacing == entry_gap else 0,
+                          pairs, stops, spacing)
     except ValueError as exc:
         raise ScenarioError(f"{exc}; lower --entry-gap or --crossings") from None
     last_exit = max(w.t_exit for w in walkers)

@@ -1,0 +1,362 @@
+"""The stack survives its faults and says so: `bintrack up` as a real process tree on a real
+router; a service killed with SIGKILL mid-run is restarted and the run still ends with the
+rows `bintrack track` gives offline (track identities included); SIGTERM on `up` leaves no
+process behind.
+
+Every wait is on an event (a line on up's stderr, a process's exit); the timeouts are only
+there to fail a hung run, generously.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
+from bintrack.live.bus import client_config
+from bintrack.keys import Keys
+from bintrack.messages import Clock, RawSample, decode, encode
+from bintrack.live.recording import open_recording
+from bintrack.live.stack import stack_commands
+
+from conftest import REPO, free_port
+
+DARPA3 = REPO / "datasets" / "darpa-grid-3"
+HUNG = 300.0  # s: only a hung run takes this long
+
+
+def bintrack(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "bintrack.cli", *args], capture_output=True, text=True,
+                          timeout=timeout, cwd=REPO)
+
+
+@pytest.fixture(scope="module")
+def grid_slice(tmp_path_factory) -> Path:
+    """The first 40 s of darpa-grid-3: three people, enough transitions for identities to matter."""
+    ds = open_dataset(DARPA3)
+    events = [e for e in ds.events() if e.t < 40.0]
+    truth = [TruthRow(*r) for r in ds.truth() if r.t < 40.0]
+    return write_dataset(tmp_path_factory.mktemp("slice") / "darpa-grid-3", ds.deployment, events, truth)
+
+
+@pytest.fixture(scope="module")
+def offline_rows(grid_slice, tmp_path_factory):
+    """tracks.csv rows of `bintrack track` per tracker (computed once)."""
+    cache: dict[str, list] = {}
+
+    def rows(tracker: str) -> list:
+        if tracker not in cache:
+            out = tmp_path_factory.mktemp("offline") / f"{tracker}.csv"
+            result = bintrack("track", str(grid_slice), "--tracker", tracker, "--out", str(out))
+            assert result.returncode == 0, result.stderr
+            cache[tracker] = read_tracks(out)
+        return cache[tracker]
+
+    return rows
+
+
+def children(pid: int) -> dict[int, str]:
+    """pid → command line of the processes whose parent is ``pid`` (from /proc)."""
+    found = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = Path(f"/proc/{entry}/stat").read_text()
+            ppid = int(stat.rsplit(")", 1)[1].split()[1])
+            if ppid == pid:
+                found[int(entry)] = Path(f"/proc/{entry}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except (OSError, ValueError, IndexError):
+            continue
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+class Up:
+    """`bintrack up` in a subprocess; its stderr is read line by line on a thread, and tests
+    wait for a line that satisfies a condition."""
+
+    def __init__(self, *args: str):
+        self.proc = subprocess.Popen([sys.executable, "-m", "bintrack.cli", "up", *args,
+                                      "--listen", f"tcp/127.0.0.1:{free_port()}", "--progress-interval", "0.2"],
+                                     stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, cwd=REPO)
+        self.lines: list[str] = []
+        self.changed = threading.Condition()
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stderr:
+            with self.changed:
+                self.lines.append(line.rstrip("\n"))
+                self.changed.notify_all()
+        with self.changed:
+            self.lines.append("<eof>")
+            self.changed.notify_all()
+
+    @property
+    def log(self) -> str:
+        return "\n".join(self.lines)
+
+    def wait_for(self, condition, what: str) -> str:
+        """The first line (from the start) for which ``condition(line)`` holds."""
+        seen = 0
+        with self.changed:
+            while True:
+                for line in self.lines[seen:]:
+                    if condition(line):
+                        return line
+                    if line == "<eof>":
+                        raise AssertionError(f"up ended before {what}:\n{self.log[-4000:]}")
+                seen = len(self.lines)
+                assert self.changed.wait(HUNG), f"no {what} within {HUNG} s:\n{self.log[-4000:]}"
+
+    def event_time_at_least(self, t: float) -> None:
+        def reached(line: str) -> bool:
+            if not line.startswith("up: t="):
+                return False
+            value = line[len("up: t="):].split("s")[0].strip()
+            return value != "-" and float(value) >= t
+        self.wait_for(reached, f"event time {t} s")
+
+    def service_pid(self, name: str) -> int:
+        pids = [pid for pid, cmd in children(self.proc.pid).items() if f"--id up{self.proc.pid}-{name} " in cmd + " "]
+        assert len(pids) == 1, (name, children(self.proc.pid))
+        return pids[0]
+
+    def finish(self) -> int:
+        code = self.proc.wait(timeout=HUNG)
+        self.reader.join(timeout=10)
+        return code
+
+
+def exported_tracks(recording: Path, tmp: Path) -> list:
+    out = tmp / "exported.csv"
+    result = bintrack("export", str(recording), "--what", "tracks", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    return read_tracks(out)
+
+
+@pytest.mark.parametrize("tracker, victim", [
+    ("mcmcda", "sensor_agent"),
+    ("mcmcda", "basestation"),
+    ("equal-weight", "peer_agent"),
+    ("mcmcda", "replay"),
+    ("mcmcda", "recorder"),
+])
+def test_a_service_killed_mid_run_is_restarted_and_the_rows_are_the_offline_ones(
+        grid_slice, offline_rows, tracker, victim, tmp_path):
+    recording = tmp_path / "run.mcap"
+    up = Up(str(grid_slice), "--tracker", tracker, "--speed", "0", "--record", str(recording), "--exit-at-end")
+    up.event_time_at_least(15.0)
+    os.kill(up.service_pid(victim), signal.SIGKILL)
+    up.wait_for(lambda line: line.startswith(f"up: {victim} killed by SIGKILL"), "the death logged")
+    up.wait_for(lambda line: line.startswith(f"up: {victim} restarted"), "the restart logged")
+    assert up.finish() == 0, up.log[-4000:]
+    assert exported_tracks(recording, tmp_path) == offline_rows(tracker), up.log[-6000:]
+
+
+def test_sigterm_on_up_leaves_no_process_behind(grid_slice):
+    up = Up(str(grid_slice), "--tracker", "mcmcda", "--speed", "1")
+    up.event_time_at_least(2.0)
+    pids = list(children(up.proc.pid))
+    assert len(pids) == 3, children(up.proc.pid)  # sensor agent, base station, replay
+    up.proc.send_signal(signal.SIGTERM)
+    assert up.finish() == 128 + signal.SIGTERM
+    assert "SIGTERM received; stopping" in up.log
+    assert [pid for pid in pids if alive(pid)] == []  # reaped by up before it exited
+
+
+def wait_gone(pid: int, timeout: float) -> bool:
+    """Wait for ``pid`` (not necessarily our child) to end, on its pidfd; True if it did."""
+    try:
+        fd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        return True
+    try:
+        return bool(select.select([fd], [], [], timeout)[0])
+    finally:
+        os.close(fd)
+
+
+def test_services_end_when_up_is_killed(grid_slice):
+    """SIGKILL gives up no chance to stop them: they end by themselves (parent-death signal)."""
+    up = Up(str(grid_slice), "--tracker", "mcmcda", "--speed", "1")
+    up.event_time_at_least(2.0)
+    pids = list(children(up.proc.pid))
+    assert len(pids) == 3
+    up.proc.kill()
+    up.finish()
+    assert [pid for pid in pids if not wait_gone(pid, 30.0)] == []
+
+
+ROUTER = """
+import signal, sys, zenoh
+from bintrack.live.bus import router_config
+router = zenoh.open(router_config([sys.argv[1]]))
+print("router up", flush=True)
+signal.sigwait({signal.SIGTERM, signal.SIGINT})
+router.close()
+"""
+
+
+def start_router(endpoint: str) -> subprocess.Popen:
+    """A Zenoh router in a process of its own (to be killed), once it listens."""
+    proc = subprocess.Popen([sys.executable, "-c", ROUTER, endpoint], stdout=subprocess.PIPE, text=True, cwd=REPO)
+    assert proc.stdout.readline().strip() == "router up"
+    return proc
+
+
+@pytest.mark.parametrize("speed", [0, pytest.param(1, marks=pytest.mark.slow)])
+def test_router_killed_and_restarted_loses_nothing(grid_slice, offline_rows, tmp_path, services, speed):
+    """Services started by hand on a router of their own; the router is killed mid-run and
+    started again: every service logs the loss and the return, replay holds its clock
+    meanwhile (at --speed 1 too: pacing resumes where it stopped, so the outage makes nothing
+    unknowable), and the run ends with the offline rows."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    net = open_dataset(grid_slice).deployment.name
+    recording = tmp_path / "run.mcap"
+    router = start_router(endpoint)
+    procs = {c.name: services(c.name, *[a for a in c.args if a != "-e" and a != "tcp/router:7447"],
+                              endpoint=endpoint)
+             for c in stack_commands(tracker="mcmcda", endpoint="tcp/router:7447", net=net, source=str(grid_slice),
+                                     speed=speed, record=str(recording))}
+    killed = threading.Event()
+
+    def on_clock(sample) -> None:  # kills the router the moment event time reaches 10 s
+        if decode(Clock, sample.payload.to_bytes()).t >= 10.0 and not killed.is_set():
+            router.kill()
+            killed.set()
+
+    session = zenoh.open(client_config([endpoint]))
+    subscriber = session.declare_subscriber(Keys(net).clock(), on_clock)
+    try:
+        assert killed.wait(HUNG), procs["replay"].log
+        router.wait()
+        for proc in procs.values():
+            wait_logged(proc, lambda log: "lost its router" in log, f"{proc.name} logging the loss")
+        router = start_router(endpoint)
+        for proc in procs.values():
+            wait_logged(proc, lambda log: "reached again" in log, f"{proc.name} logging the return")
+        assert procs["replay"].wait(HUNG) == 0, procs["replay"].log
+        assert procs["recorder"].wait(HUNG) == 0, procs["recorder"].log
+    finally:
+        subscriber.undeclare()
+        session.close()
+        router.terminate()
+        router.wait()
+    assert "holding event time" in procs["replay"].log
+    assert exported_tracks(recording, tmp_path) == offline_rows("mcmcda"), "\n".join(
+        p.log[-3000:] for p in procs.values())
+
+
+def wait_logged(proc, condition, what: str) -> None:
+    """Wait until ``condition(log)`` holds for the service's log (polled: it is a file)."""
+    import time
+
+    deadline = time.monotonic() + HUNG
+    while not condition(proc.log):
+        assert proc.proc.poll() is None or condition(proc.log), f"{proc.name} ended before {what}:\n{proc.log[-3000:]}"
+        assert time.monotonic() < deadline, f"no {what}:\n{proc.log[-3000:]}"
+        time.sleep(0.05)
+
+
+def rss_kb(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    raise AssertionError(f"no VmRSS for {pid}")
+
+
+def test_oversized_payloads_are_refused_unread_and_memory_stays_flat(zenoh_router, services, tmp_path):
+    """Four bursts of two 10 MB payloads on a sensor's raw key: refused before decoding with
+    one line and counted; the service goes on, and its memory does not grow with the bursts
+    (after the first, which sizes Zenoh's receive buffer once: about 20 MB)."""
+    ds = open_dataset(DARPA3)
+    keys = Keys(ds.deployment.name)
+    session = zenoh.open(client_config([zenoh_router]))
+    progress = threading.Event()
+    transitions = []
+    entities = [
+        session.declare_queryable(keys.deployment(), lambda q: q.reply(keys.deployment(), encode(ds.deployment))),
+        session.declare_subscriber(keys.progress(), lambda s: progress.set()),
+        session.declare_subscriber(keys.transition(), lambda s: transitions.append(str(s.key_expr))),
+    ]
+    agent = services("sensor_agent", "--net", keys.net, endpoint=zenoh_router)
+    try:
+        wait_logged(agent, lambda log: "ready on" in log, "the sensor agent to come up")
+        sensor = ds.deployment.sensors[0].id
+        rss = []
+        for burst in range(4):
+            rss.append(rss_kb(agent.proc.pid))
+            for _ in range(2):
+                session.put(keys.raw(sensor), b"\x00" * (10 * 1024 * 1024))
+            session.put(keys.raw(sensor), encode(RawSample(t=1.0 + burst, sensor=sensor, value=(burst + 1) % 2)))
+            progress.clear()
+            session.put(keys.clock(), encode(Clock(t=1.5 + burst)))
+            assert progress.wait(HUNG), agent.log
+        rss.append(rss_kb(agent.proc.pid))
+        before, after = rss[1], rss[-1]
+    finally:
+        for entity in entities:
+            entity.undeclare()
+        session.close()
+    assert transitions == [keys.transition(sensor)] * 4  # the good samples after them were taken
+    assert agent.stop() == 0
+    lines = [line for line in agent.log.splitlines() if "dropped a bad payload" in line]
+    assert len(lines) == 1 and f"too large: {10 * 1024 * 1024} bytes > 65536 (refused unread)" in lines[0], agent.log
+    assert "8 bad payloads {'too large': 8}" in agent.log
+    assert after - before < 4 * 1024, (before, after)  # kB: far below one of the 10 MB payloads
+
+
+def test_up_stops_when_another_stack_of_its_network_joins(grid_slice):
+    """An orphan of an older stack (here a token declared by hand) reconnecting to up's router:
+    up names it and stops, rather than mixing two stacks' messages."""
+    up = Up(str(grid_slice), "--tracker", "mcmcda", "--speed", "1")
+    up.event_time_at_least(1.0)
+    endpoint = next(arg for arg in up.proc.args if arg.startswith("tcp/"))
+    session = zenoh.open(client_config([endpoint]))
+    try:
+        token = session.liveliness().declare_token(Keys("darpa-grid").alive("sensor_agent", "old-1"))
+        assert up.finish() == 1, up.log
+        token.undeclare()
+    finally:
+        session.close()
+    assert "up: another stack of network darpa-grid joined the bus: sensor_agent/old-1; stopped the others" in up.log
+
+
+def test_recorder_splits_its_files_by_event_time(grid_slice, zenoh_router, services, tmp_path):
+    """--split-duration 10: the 40 s slice goes into run.mcap, run_1.mcap, … each finalised,
+    each spanning at most 10 s of clock ticks, and together holding every raw sample once."""
+    out = tmp_path / "run.mcap"
+    net = open_dataset(grid_slice).deployment.name
+    recorder = services("recorder", "--out", str(out), "--split-duration", "10", "--net", net, endpoint=zenoh_router)
+    replay = services("replay", str(grid_slice), "--speed", "0", "--wait-for", "recorder", endpoint=zenoh_router)
+    assert replay.wait(HUNG) == 0, replay.log
+    assert recorder.wait(HUNG) == 0, recorder.log
+    parts = [out] + sorted(tmp_path.glob("run_*.mcap"), key=lambda p: int(p.stem.split("_")[1]))
+    assert [p.name for p in parts] == ["run.mcap"] + [f"run_{k}.mcap" for k in range(1, len(parts))]
+    assert len(parts) >= 4, recorder.log
+    raw = 0
+    for part in parts:
+        recording = open_recording(part)
+        assert recording.complete, part
+        ticks = [r.t for r in recording.records() if r.kind == "clock"]
+        assert ticks and ticks[-1] - ticks[0] <= 10.0, (part, ticks[0], ticks[-1])
+        raw += sum(r.kind == "raw" for r in recording.records())
+    assert raw == sum(1 for _ in open_dataset(grid_slice).events())
