@@ -24,6 +24,7 @@ from bintrack.trackers import TRACKER_NAMES
 SHIPPED_DATASET = Path(__file__).resolve().parents[3] / "datasets" / "darpa-grid-3"
 # Several people at once: fusion and online MCMCDA at the base station (paper 004).
 DEMO_TRACKER = "mcmcda"
+DEMO_VIEW_PORT = 8080
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,8 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed", type=float, default=0.0,
                         help="replay speed; 0 = as fast as the services keep up (default: %(default)s)")
     parser.add_argument("--no-view", dest="view", action="store_false", help="do not start the map")
-    parser.add_argument("--view-port", type=int, default=8080, metavar="PORT",
-                        help="HTTP port of the map while the stack runs (default: %(default)s)")
+    parser.add_argument("--view-port", type=int, metavar="PORT",
+                        help=f"HTTP port of the map while the stack runs (default: {DEMO_VIEW_PORT}, or a free one "
+                        "if that is taken)")
     parser.add_argument("--out", type=Path, default=Path("out/demo"),
                         help="folder for recording.mcap, tracks.csv and demo.png (default: %(default)s)")
 
@@ -48,10 +50,20 @@ def final_table(rows: list[TrackRow], last: int = 10) -> list[str]:
     return lines
 
 
+def _free_port(preferred: int = 0) -> int:
+    """``preferred`` if it is free on 127.0.0.1, else a free port."""
+    for port in (preferred, 0):
+        with socket.socket() as sock:
+            try:
+                sock.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return sock.getsockname()[1]
+    raise CommandError("no free port on 127.0.0.1")
+
+
 def _free_endpoint() -> str:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{sock.getsockname()[1]}"
+    return f"tcp/127.0.0.1:{_free_port()}"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -62,10 +74,13 @@ def run(args: argparse.Namespace) -> int:
     recording = args.out / "recording.mcap"
     print(f"bintrack demo: {dataset.deployment.name}, {len(dataset.deployment.sensors)} sensors, "
           f"tracker {args.tracker}, live stack at speed {args.speed:g} (0 = as fast as it keeps up)")
-    stack = argparse.Namespace(source=str(args.dataset), tracker=args.tracker, speed=args.speed, loop=False,
-                               record=str(recording), exit_at_end=True, listen=_free_endpoint(), net=None,
-                               progress_interval=1.0, view=args.view, view_port=args.view_port,
-                               view_bind="127.0.0.1")
+    # up's own parser, so that every option of up has its default here too
+    parser = argparse.ArgumentParser(prog="bintrack up")
+    up.add_arguments(parser)
+    stack = parser.parse_args([str(args.dataset), "--tracker", args.tracker, "--speed", repr(args.speed),
+                               "--record", str(recording), "--exit-at-end", "--listen", _free_endpoint(),
+                               "--view-port", str(args.view_port or _free_port(DEMO_VIEW_PORT)),
+                               *(() if args.view else ("--no-view",))])
     status = up.run(stack)
     if status != 0:
         return status
