@@ -80,7 +80,7 @@ def main() -> int:
              "--duration", f"{args.duration:g}", "--out", str(dataset))
 
     up = subprocess.Popen([sys.executable, "-m", "bintrack.cli", "up", str(dataset), "--tracker", "mcmcda",
-                           "--speed", "0", "--loop", "--record", str(recording),
+                           "--speed", "0", "--loop", "--record", str(recording), "--no-view",
                            "--listen", f"tcp/127.0.0.1:{free_port()}", "--progress-interval", "1"],
                           stderr=subprocess.PIPE, text=True)
     event_time = [0.0]

@@ -36,7 +36,7 @@ def test_forged_clock_and_end_of_stream_do_not_change_the_run(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     recording = tmp_path / "run.mcap"
     up = subprocess.Popen([sys.executable, "-m", "bintrack.cli", "up", str(folder), "--speed", "0", "--tracker",
-                           "equal-weight", "--record", str(recording), "--exit-at-end", "--listen", endpoint],
+                           "equal-weight", "--record", str(recording), "--exit-at-end", "--no-view", "--listen", endpoint],
                           stderr=subprocess.PIPE, text=True, cwd=REPO)
     log: list[str] = []
     reader = threading.Thread(target=lambda: log.extend(up.stderr), daemon=True)

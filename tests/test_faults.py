@@ -92,7 +92,7 @@ class Up:
     wait for a line that satisfies a condition."""
 
     def __init__(self, *args: str):
-        self.proc = subprocess.Popen([sys.executable, "-m", "bintrack.cli", "up", *args,
+        self.proc = subprocess.Popen([sys.executable, "-m", "bintrack.cli", "up", *args, "--no-view",
                                       "--listen", f"tcp/127.0.0.1:{free_port()}", "--progress-interval", "0.2"],
                                      stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, cwd=REPO)
         self.lines: list[str] = []

@@ -16,7 +16,7 @@ from cryptography import x509
 from bintrack.cli import main as cli
 from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
 from bintrack.live.bus import client_config as plain_client_config
-from bintrack.live.secure_profile import client_config, restrict_sensor_agents, router_config
+from bintrack.live.secure_profile import awaiting_token_holders, client_config, restrict_sensor_agents, role_of, router_config
 from bintrack.messages import Clock, Track, TrackSet, encode
 
 from conftest import REPO, free_port
@@ -151,7 +151,8 @@ def test_the_secure_stack_gives_the_offline_rows(certs, tmp_path):
                            [TruthRow(*r) for r in ds.truth() if 10.0 <= r.t < 40.0])
     recording = tmp_path / "secure.mcap"
     up = bintrack("up", str(folder), "--speed", "0", "--tracker", "equal-weight", "--record", str(recording),
-                  "--exit-at-end", "--secure", "--certs", str(certs), "--listen", f"tls/127.0.0.1:{free_port()}")
+                  "--exit-at-end", "--secure", "--certs", str(certs), "--listen", f"tls/127.0.0.1:{free_port()}",
+                  "--view-port", str(free_port()))  # the map runs as the viewer role
     assert up.returncode == 0, up.stderr[-3000:]
     assert "bad payloads" not in up.stderr and "PRIVATE KEY" not in up.stderr
     offline = tmp_path / "offline.csv"
@@ -183,12 +184,15 @@ def test_the_compose_override_runs_every_service_of_the_base_file_under_its_role
         assert {"./deploy/secure:/secure:ro", "./certs:/certs:ro"} <= set(service["volumes"]), name
         if name == "router":
             continue
-        role = ["-c", f"/secure/{name}.json5"]
+        role = ["-c", f"/secure/{role_of(name)}.json5"]
         tls = [{"tcp/router:7447": "tls/router:7447"}.get(a, a) for a in base[name]["command"]]
-        assert service["command"] == tls + role, name
+        assert service["command"] == list(awaiting_token_holders(tls)) + role, name
         health = [{"tcp/router:7447": "tls/router:7447"}.get(a, a) for a in base[name]["healthcheck"]["test"]]
-        assert service["healthcheck"]["test"] == health + role, name
-        config = zenoh.Config.from_file(str(REPO / "deploy" / "secure" / f"{name}.json5"))
+        if role_of(name) == "viewer":  # no liveliness token to probe: the page answers instead
+            assert "state.json" in " ".join(service["healthcheck"]["test"]), name
+        else:
+            assert service["healthcheck"]["test"] == health + role, name
+        config = zenoh.Config.from_file(str(REPO / "deploy" / "secure" / f"{role_of(name)}.json5"))
         assert "/certs/" in str(config.get_json("transport/link/tls/connect_certificate"))
     zenoh.Config.from_file(str(REPO / "deploy" / "secure" / "router.json5"))
 

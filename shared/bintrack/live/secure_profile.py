@@ -77,12 +77,12 @@ def role_of(service: str) -> str:
 def secure_commands(commands: Iterable[ServiceCommand], certs: Path, profile: Path = PROFILE) -> list[ServiceCommand]:
     """``commands`` (:func:`bintrack.live.stack.stack_commands`), each service a client of the
     secure router in its role (:func:`role_of`)."""
-    return [replace(c, args=(*_awaiting_token_holders(c.args), *client_options(role_of(c.name), certs, profile)))
+    return [replace(c, args=(*awaiting_token_holders(c.args), *client_options(role_of(c.name), certs, profile)))
             for c in commands]
 
 
-def _awaiting_token_holders(args: tuple[str, ...]) -> tuple[str, ...]:
-    """Replay's ``--wait-for`` without the viewer: a read-only role holds no liveliness token,
+def awaiting_token_holders(args: tuple[str, ...] | list[str]) -> tuple[str, ...]:
+    """A command's options with replay's ``--wait-for`` without the viewer: a read-only role holds no liveliness token,
     so replay would wait for it for ever."""
     args = list(args)
     if "--wait-for" in args:
