@@ -22,6 +22,7 @@ import zenoh
 
 from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
 from bintrack.live.bus import client_config
+from bintrack.live.control_guard import control_attachment
 from bintrack.keys import Keys
 from bintrack.messages import Clock, RawSample, decode, encode
 from bintrack.live.recording import open_recording
@@ -296,7 +297,10 @@ def test_oversized_payloads_are_refused_unread_and_memory_stays_flat(zenoh_route
         session.declare_queryable(keys.deployment(), lambda q: q.reply(keys.deployment(), encode(ds.deployment))),
         session.declare_subscriber(keys.progress(), lambda s: progress.set()),
         session.declare_subscriber(keys.transition(), lambda s: transitions.append(str(s.key_expr))),
+        # the test plays the replay's part: its clock comes from a replay token's holder
+        session.liveliness().declare_token(keys.alive("replay", "test")),
     ]
+    control = control_attachment("replay", "test")
     agent = services("sensor_agent", "--net", keys.net, endpoint=zenoh_router)
     try:
         wait_logged(agent, lambda log: "ready on" in log, "the sensor agent to come up")
@@ -308,7 +312,7 @@ def test_oversized_payloads_are_refused_unread_and_memory_stays_flat(zenoh_route
                 session.put(keys.raw(sensor), b"\x00" * (10 * 1024 * 1024))
             session.put(keys.raw(sensor), encode(RawSample(t=1.0 + burst, sensor=sensor, value=(burst + 1) % 2)))
             progress.clear()
-            session.put(keys.clock(), encode(Clock(t=1.5 + burst)))
+            session.put(keys.clock(), encode(Clock(t=1.5 + burst)), attachment=control)
             assert progress.wait(HUNG), agent.log
         rss.append(rss_kb(agent.proc.pid))
         before, after = rss[1], rss[-1]
