@@ -9,7 +9,7 @@ Issue 21. The suite is ``bintrack simulate darpa-grid`` with its settings varied
   grids (``--walk curving``);
 * 1 to all possible crossing pairs (``--crossings``), 0–1 side-by-side pairs 2–5 m apart
   (``--pairs``), 0–2 people who stop for 5–15 s (``--stops``);
-* 0–12 dead nodes (``--dead``), node jitter ±0–1 m (``--jitter``);
+* 0–12 dead nodes (``--dead``), node jitter ±0–1 m (``--node-jitter``);
 * the 12 × 12 grid at 5 m, 8 m range, 0.5 s period of paper 004.
 
 It is split into a **tuning half** and a **held-out half** (fixed, different simulation seeds,
@@ -91,7 +91,7 @@ def suite(per_half: int) -> dict[str, list[dict]]:
                         pfa=round(float(rng.uniform(0.02, 0.1)), 3),
                         walk="curving" if rng.random() < 0.75 else "straight",
                         entry_gap=round(float(rng.uniform(4.0, 8.0)), 1),
-                        dead=int(rng.integers(0, 13)), jitter=round(float(rng.uniform(0.0, 1.0)), 2),
+                        dead=int(rng.integers(0, 13)), node_jitter=round(float(rng.uniform(0.0, 1.0)), 2),
                         stops=int(rng.integers(0, min(2, people) + 1)))
             most = 1 if people < 4 else 1 + len(range(4, people, 2))
             spec["crossings"] = int(rng.integers(1, most + 1))

@@ -321,7 +321,7 @@ def test_darpa_grid_layout_dead_nodes_and_crossing_people():
 def test_darpa_grid_variations_curving_walks_pairs_stops_and_layout():
     plain = build_scenario("darpa-grid", 4, people=7)
     varied = build_scenario("darpa-grid", 4, people=7, walk="curving", crossings=2, pairs=1, stops=2,
-                            dead=12, jitter=0.0, grid=14, entry_gap=6.0)
+                            dead=12, node_jitter=0.0, grid=14, entry_gap=6.0)
     assert len(varied.sensors) == 14 * 14 and len(varied.dead) == 12
     xs = sorted({s.x for s in varied.sensors})
     assert xs[:3] == [0.0, 5.0, 10.0]  # no jitter: the grid itself
@@ -349,7 +349,7 @@ def test_darpa_grid_variations_curving_walks_pairs_stops_and_layout():
     stops = [s.t1 - s.t0 for w in varied.trajectories for s in w.segments if s.vx == 0 and s.vy == 0]
     assert len(stops) == 2 and all(5 <= d <= 15 for d in stops)
     # the default options give the default scenario (the shipped datasets stay as they are)
-    assert build_scenario("darpa-grid", 4, people=7, grid=12, jitter=0.5, dead=6, entry_gap=10.0, walk="straight",
+    assert build_scenario("darpa-grid", 4, people=7, grid=12, node_jitter=0.5, dead=6, entry_gap=10.0, walk="straight",
                           crossings=1, pairs=0, stops=0) == plain
     assert not any(s.vx == 0 and s.vy == 0 for w in plain.trajectories for s in w.segments)
 
@@ -414,7 +414,7 @@ def test_motion_scenarios():
     (dict(name="darpa-grid", people=4, pairs=1), "would include crossing ones"),
     (dict(name="darpa-grid", people=2, stops=3), "--stops must be within 0..2"),
     (dict(name="darpa-grid", grid=1), "--grid must be within"),
-    (dict(name="darpa-grid", jitter=3.0), "--jitter must be within"),
+    (dict(name="darpa-grid", node_jitter=3.0), "--node-jitter must be within"),
     (dict(name="laser-testbed", passes=1), "--passes must be at least 2"),
     (dict(name="motion", trajectory="circular"), "--trajectory must be one of constant, random-walk"),
     (dict(name="nowhere"), "unknown scenario"),

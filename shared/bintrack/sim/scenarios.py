@@ -212,7 +212,7 @@ def _people(rng: np.random.Generator, extra: np.random.Generator, people: int, f
 
 def darpa_grid(seed: int = 0, *, people: int = 3, sensing_range: float = 8.0, pd: float = 0.7, pfa: float = 0.05,
                period: float = 0.5, duration: float | None = None, grid: int = GRID_SIZE,
-               jitter: float = GRID_JITTER, dead: int = GRID_DEAD, entry_gap: float = 10.0,
+               node_jitter: float = GRID_JITTER, dead: int = GRID_DEAD, entry_gap: float = 10.0,
                walk: str = "straight", crossings: int = 1, pairs: int = 0, stops: int = 0) -> Scenario:
     """Paper 004 §V (DARPA NEST 2005): 144 PIR nodes in a 12×12 grid at ≈5 m spacing (jitter
     ±0.5 m), 6 of them dead (listed, never report), range 8 m, pd 0.7, pfa 0.05 per sample,
@@ -222,7 +222,7 @@ def darpa_grid(seed: int = 0, *, people: int = 3, sensing_range: float = 8.0, pd
     entries evenly over it (about (duration − 90 s)/people apart, the last one leaving before
     the end), so that a long run is tracked all along (with no crossings then).
 
-    Variations (defaults give the scenario above): ``grid`` nodes per side, ``jitter`` (m),
+    Variations (defaults give the scenario above): ``grid`` nodes per side, ``node_jitter`` (m),
     ``dead`` nodes, ``entry_gap`` (s between entries), ``walk`` straight|curving, ``crossings``
     (pairs of people crossing mid-field), ``pairs`` (side-by-side pairs), ``stops`` (people
     who stop for a while); see :func:`_people`."""
@@ -234,7 +234,8 @@ def darpa_grid(seed: int = 0, *, people: int = 3, sensing_range: float = 8.0, pd
     _probability("pd", pd)
     _probability("pfa", pfa)
     _check(2 <= grid <= 200, f"--grid must be within 2..200 nodes per side, got {grid}")
-    _check(math.isfinite(jitter) and 0 <= jitter < GRID_SPACING / 2, f"--jitter must be within [0, {GRID_SPACING / 2:g}) m, got {jitter}")
+    _check(math.isfinite(node_jitter) and 0 <= node_jitter < GRID_SPACING / 2,
+           f"--node-jitter must be within [0, {GRID_SPACING / 2:g}) m, got {node_jitter}")
     _check(0 <= dead <= grid * grid, f"--dead must be within 0..{grid * grid}, got {dead}")
     _choice("walk", walk, WALKS)
     possible = _crossing_pairs(people)
@@ -246,7 +247,7 @@ def darpa_grid(seed: int = 0, *, people: int = 3, sensing_range: float = 8.0, pd
     _check(0 <= stops <= people, f"--stops must be within 0..{people}, got {stops}")
     layout, paths, phases, extra = _streams(seed, 4)
     field = Region(xmin=0, ymin=0, xmax=(grid - 1) * GRID_SPACING, ymax=(grid - 1) * GRID_SPACING)
-    positions = deployments.grid_positions(layout, grid, grid, GRID_SPACING, jitter)
+    positions = deployments.grid_positions(layout, grid, grid, GRID_SPACING, node_jitter)
     sensors = deployments.disks_at(positions, sensing_range, period=period, pd=pd, pfa=pfa)
     dead_ids = deployments.dead_nodes(layout, [s.id for s in sensors], dead)
     # a long --duration spreads the arrivals over it, so that the whole run has people in it
