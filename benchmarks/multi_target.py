@@ -48,7 +48,6 @@ import argparse
 import importlib.util
 import itertools
 import json
-import math
 import multiprocessing
 import sys
 import time
@@ -168,7 +167,7 @@ def run_ours(args) -> tuple:
     scores = []
     for seed in seeds:
         tracker = tracker_for(data.deployment, variant, seed)
-        tracks, reports, mcmcda_s = {}, [], 0.0
+        tracks, reports = {}, []
         start = time.perf_counter()
         for out in run_tracker(data, tracker):
             if isinstance(out, PositionReports):
