@@ -23,7 +23,6 @@ import asyncio
 import json
 import logging
 import os
-import pickle
 import signal
 import socket
 import threading
@@ -37,6 +36,7 @@ import zenoh
 
 from bintrack.errors import CommandError
 from bintrack.keys import Keys, parse_key
+from bintrack.live import checkpoint
 from bintrack.live.control_guard import guard_control
 from bintrack.messages import Clock, EndOfStream, Message, MessageError, decode, encode
 
@@ -421,27 +421,25 @@ class Service:
         return None if not folder else os.path.join(folder, f"{self.name}-{self.instance}.pickle")
 
     def load_checkpoint(self):
-        """The object saved by :meth:`save_checkpoint` before a restart, or None (logged)."""
+        """The object saved by :meth:`save_checkpoint` before a restart, or None (a refused
+        checkpoint is logged, and the service starts afresh)."""
         path = self.checkpoint_path()
-        if path is None or not os.path.exists(path):
+        if path is None:
             return None
         try:
-            with open(path, "rb") as handle:
-                state = pickle.load(handle)
-        except (OSError, pickle.UnpicklingError, EOFError, AttributeError) as exc:
-            log.warning("%s: checkpoint %s unreadable (%s); starting afresh", self.name, path, exc)
+            state = checkpoint.load_checkpoint(path)
+        except checkpoint.CheckpointRefused as exc:
+            log.warning("%s: checkpoint %s %s; starting afresh", self.name, path, exc)
             return None
-        log.info("%s %s: restarted; resuming from its checkpoint", self.name, self.instance)
+        if state is not None:
+            log.info("%s %s: restarted; resuming from its checkpoint", self.name, self.instance)
         return state
 
     def save_checkpoint(self, state) -> None:
-        """Save ``state`` atomically (written aside, then renamed) if ``--state-dir`` is set."""
+        """Save ``state`` atomically, private to this user, if ``--state-dir`` is set."""
         path = self.checkpoint_path()
-        if path is None:
-            return
-        with open(path + ".tmp", "wb") as handle:
-            pickle.dump(state, handle, protocol=pickle.HIGHEST_PROTOCOL)
-        os.replace(path + ".tmp", path)
+        if path is not None:
+            checkpoint.save_checkpoint(path, state)
 
     def _watch_router(self) -> None:
         """Log the loss and return of the router (Zenoh transport events). While it is lost the
