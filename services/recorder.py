@@ -111,6 +111,7 @@ class Recorder(Service):
         self.recent: dict[str, deque[bytes]] = {}
         self.gone: set[str] = set()  # alive/ keys of services that went away
         self.dedupe_left = 0  # result messages still checked for duplicates after a return
+        self.gap_from: float | None = None  # after a restart: event time up to which the file was kept
         self.flushed_at, self.unflushed_ticks = time.monotonic(), 0
         self.part_start: float | None = None  # event time of the first tick of the current file
         self._changed = asyncio.Event()
@@ -140,8 +141,9 @@ class Recorder(Service):
             kept = self._copy(aside)
             aside.unlink()
             fetched = await asyncio.to_thread(self._fetch_tracks)
-            log.info("recorder: restarted; kept the %d messages recorded before, fetched %d track sets "
-                     "published since from the base station", kept, fetched)
+            log.info("recorder: restarted; kept the %d messages recorded before (up to t=%g s), fetched %d "
+                     "track sets published since from the base station", kept, self.last_t, fetched)
+            self.gap_from = self.last_t
         self._declared.append(self.session.liveliness().declare_subscriber(
             self.keys.alive(), self.inbox.callback(self._on_alive), history=True))
         self.subscribe(self.keys.all(), self._on_sample)
@@ -219,6 +221,11 @@ class Recorder(Service):
         t = self.last_t if t is None else t
         if parsed.kind == "clock":
             self._maybe_split(t)  # a new file starts with a clock tick
+            if self.gap_from is not None:
+                log.warning("recorder: recording again from t=%g s; the raw samples, transitions and estimates "
+                            "published between t=%g s and then are missing from %s (track sets fetched)",
+                            t, self.gap_from, self.path)
+                self.gap_from = None
         try:
             self.writer.write(key, t, payload, time.time_ns())
         except ValueError as exc:

@@ -364,3 +364,44 @@ def test_recorder_splits_its_files_by_event_time(grid_slice, zenoh_router, servi
         assert ticks and ticks[-1] - ticks[0] <= 10.0, (part, ticks[0], ticks[-1])
         raw += sum(r.kind == "raw" for r in recording.records())
     assert raw == sum(1 for _ in open_dataset(grid_slice).events())
+
+
+@pytest.fixture(scope="module")
+def short_slice(tmp_path_factory) -> Path:
+    """The first 20 s of darpa-grid-3, for runs paced in real time."""
+    ds = open_dataset(DARPA3)
+    events = [e for e in ds.events() if e.t < 20.0]
+    truth = [TruthRow(*r) for r in ds.truth() if r.t < 20.0]
+    return write_dataset(tmp_path_factory.mktemp("short") / "darpa-grid-3", ds.deployment, events, truth)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("tracker, victims", [
+    ("mcmcda", ["sensor_agent", "basestation", "replay", "recorder"]),
+    ("equal-weight", ["peer_agent"]),
+])
+def test_services_killed_in_turn_in_real_time_lose_only_what_is_logged(short_slice, tracker, victims, tmp_path):
+    """At --speed 1 each service kind is killed in turn (every 4 s of event time, each once the
+    previous one is back). Replay holds event time while one is gone and a restarted service
+    fetches what it missed, so the track sets (identities included) are still the offline
+    ones; what the recorder loses when it is killed (the messages of its open chunk, other than
+    track sets) is logged with its span, which its flush interval bounds."""
+    from bintrack.services.recorder import FLUSH_INTERVAL
+
+    recording = tmp_path / "run.mcap"
+    up = Up(str(short_slice), "--tracker", tracker, "--speed", "1", "--record", str(recording), "--exit-at-end")
+    for n, victim in enumerate(victims):
+        up.event_time_at_least(4.0 * (n + 1))
+        os.kill(up.service_pid(victim), signal.SIGKILL)
+        up.wait_for(lambda line: line.startswith(f"up: {victim} killed by SIGKILL"), f"{victim}'s death logged")
+        up.wait_for(lambda line: line.startswith(f"up: {victim} restarted"), f"{victim}'s restart logged")
+    assert up.finish() == 0, up.log[-4000:]
+    offline = tmp_path / "offline.csv"
+    result = bintrack("track", str(short_slice), "--tracker", tracker, "--out", str(offline))
+    assert result.returncode == 0, result.stderr
+    assert exported_tracks(recording, tmp_path) == read_tracks(offline), up.log[-6000:]
+    if "recorder" in victims:
+        gap = up.wait_for(lambda line: "recorder: recording again from t=" in line, "the recorder's loss logged")
+        resumed = float(gap.split("recording again from t=")[1].split(" s")[0])
+        lost_from = float(gap.split("published between t=")[1].split(" s")[0])
+        assert 0.0 <= resumed - lost_from <= FLUSH_INTERVAL + 2.0, gap
