@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+HUNG = 300.0  # s: every wait is on an event; its timeout only fails a hung run (a loaded CPU is not one)
 
 
 def write_foreign_dataset(folder: Path, *, nodes: int = 200, size: float = 200.0, sensing_range: float = 20.0,
@@ -98,12 +99,12 @@ class ServiceProcess:
             self._log.flush()
         return self.log_path.read_text()
 
-    def wait(self, timeout: float = 60.0) -> int:
+    def wait(self, timeout: float = HUNG) -> int:
         code = self.proc.wait(timeout=timeout)
         self._log.close()
         return code
 
-    def stop(self, timeout: float = 20.0) -> int:
+    def stop(self, timeout: float = HUNG) -> int:
         """SIGTERM, then the exit status (a hang fails the test)."""
         import signal
 

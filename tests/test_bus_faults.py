@@ -45,7 +45,7 @@ from bintrack.messages import (
 )
 from bintrack.live.recording import KIND_TYPES, open_recording
 
-from conftest import free_port, write_foreign_dataset
+from conftest import HUNG, free_port, write_foreign_dataset
 
 NET = "faults"
 # Five disk sensors on a line, neighbours of each other: n0 … n4 at x = 0 … 4.
@@ -58,7 +58,7 @@ def client_session(endpoint: str) -> zenoh.Session:
     return zenoh.open(client_config([endpoint]))
 
 
-def wait_until(condition, what: str, timeout: float = 30.0, logs=()) -> None:
+def wait_until(condition, what: str, timeout: float = HUNG, logs=()) -> None:
     """Wait (generously) for ``condition()``; fail with the services' logs if it never holds."""
     deadline = time.monotonic() + timeout
     while not condition():
@@ -108,7 +108,7 @@ class Bus:
         replies = self.session.liveliness().get(self.keys.alive(service), timeout=2.0)
         return [str(r.ok.key_expr) for r in replies if r.ok is not None]
 
-    def wait_for(self, service: str, proc=None, timeout: float = 30.0) -> None:
+    def wait_for(self, service: str, proc=None, timeout: float = HUNG) -> None:
         wait_until(lambda: self.alive(service), f"{service} to come up", timeout, [proc] if proc else [])
 
     def tick(self, t: float, service: str, proc=None) -> None:
@@ -380,7 +380,7 @@ class Stack:
         ticks = self.bus.messages("clock")
         return ticks[-1][1].t if ticks else -math.inf
 
-    def wait(self, condition, what: str, timeout: float = 45.0) -> None:
+    def wait(self, condition, what: str, timeout: float = HUNG) -> None:
         wait_until(condition, what, timeout, self.procs)
 
     def arrived(self, kind: str, half: str, start: int, after: float = -math.inf) -> list:
@@ -392,7 +392,7 @@ class Stack:
         """SIGKILL ``proc``; (index into what the bus saw, last tick) once it is dead and gone."""
         before = len(self.bus.alive(proc.name))
         proc.proc.send_signal(signal.SIGKILL)
-        assert proc.wait(20) == -signal.SIGKILL
+        assert proc.wait(HUNG) == -signal.SIGKILL
         self.wait(lambda: len(self.bus.alive(proc.name)) == before - 1, f"the token of the killed {proc.name} to go")
         return self.bus.mark(), self.last_tick()
 
@@ -499,7 +499,7 @@ def test_service_started_before_the_router_waits_then_comes_up(tmp_path, service
 def test_service_without_a_router_gives_up_after_wait_with_one_line(services):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     agent = services("peer_agent", "--tracker", TRACKER, "--net", NET, "--wait", "1", endpoint=endpoint)
-    assert agent.wait(30) == 1
+    assert agent.wait(HUNG) == 1
     lines = agent.log.strip().splitlines()
     assert "Traceback" not in agent.log, agent.log
     assert re.fullmatch(r"\d\d:\d\d:\d\d peer_agent: no Zenoh router reachable after \d+ attempts: .+", lines[-1]), lines

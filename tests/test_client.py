@@ -13,7 +13,7 @@ from bintrack.live.bus import client_config
 from bintrack.client import BintrackClient
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, Track, TrackSet, Transition, encode
-from conftest import free_port
+from conftest import HUNG, free_port
 
 NET = "test-client"
 KEYS = Keys(NET)
@@ -33,7 +33,7 @@ def client_for(endpoint: str, **kwargs) -> BintrackClient:
     return BintrackClient(net=NET, connect=[endpoint], wait=5.0, **kwargs)
 
 
-async def matched(publisher: zenoh.Publisher, timeout: float = 5.0) -> zenoh.Publisher:
+async def matched(publisher: zenoh.Publisher, timeout: float = HUNG) -> zenoh.Publisher:
     """Wait until the router knows a subscriber for ``publisher``: puts from now on arrive."""
     deadline = asyncio.get_running_loop().time() + timeout
     while not publisher.matching_status.matching:
@@ -42,7 +42,7 @@ async def matched(publisher: zenoh.Publisher, timeout: float = 5.0) -> zenoh.Pub
     return publisher
 
 
-async def next_of(subscription, timeout: float = 5.0):
+async def next_of(subscription, timeout: float = HUNG):
     return await asyncio.wait_for(anext(subscription), timeout)
 
 

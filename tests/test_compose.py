@@ -31,7 +31,7 @@ import zenoh
 
 from bintrack.client import BintrackClient
 from bintrack.messages import TrackSet
-from conftest import REPO, free_port
+from conftest import HUNG, REPO, free_port
 
 COMPOSE = yaml.safe_load((REPO / "docker-compose.yml").read_text())
 SERVICES: dict = COMPOSE["services"]
@@ -207,7 +207,7 @@ def test_every_module_answers_help():
     runs = {m: subprocess.Popen([sys.executable, "-m", m, "--help"], stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True, cwd=REPO) for m in modules}
     for module, proc in runs.items():
-        out, err = proc.communicate(timeout=60)
+        out, err = proc.communicate(timeout=HUNG)
         assert proc.returncode == 0, f"{module} --help: {err}"
         assert "--connect" in out and "--net" in out, f"{module} --help lacks the bus options"
 
@@ -291,7 +291,7 @@ def test_the_whole_stack_starts_is_healthy_and_stops_cleanly(zenoh_router, servi
     for name in reversed(order):   # as compose stops them
         started[name].proc.send_signal(signal.SIGTERM)
     for name in reversed(order):
-        status = started[name].wait(timeout=20)
+        status = started[name].wait(timeout=HUNG)
         assert status == 0, f"{name} exited with {status} on SIGTERM:\n{started[name].log_path.read_text()}"
 
     config = zenoh.Config()

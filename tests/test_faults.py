@@ -28,13 +28,12 @@ from bintrack.messages import Clock, RawSample, decode, encode
 from bintrack.live.recording import open_recording
 from bintrack.live.stack import stack_commands
 
-from conftest import REPO, free_port
+from conftest import HUNG, REPO, free_port
 
 DARPA3 = REPO / "datasets" / "darpa-grid-3"
-HUNG = 300.0  # s: only a hung run takes this long
 
 
-def bintrack(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+def bintrack(*args: str, timeout: float = HUNG) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "bintrack.cli", *args], capture_output=True, text=True,
                           timeout=timeout, cwd=REPO)
 

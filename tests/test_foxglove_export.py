@@ -14,14 +14,14 @@ from bintrack.formats import read_deployment
 from bintrack.messages import (Clock, PositionReport, PositionReports, Track, TrackSet, Transition, TruthSample,
                                encode)
 from bintrack.live.recording import RecordingWriter, open_recording
-from conftest import REPO
+from conftest import HUNG, REPO
 
 DARPA3 = REPO / "datasets" / "darpa-grid-3"
 
 
 def bintrack(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "bintrack.cli", *args], capture_output=True, text=True, cwd=REPO,
-                          timeout=60)
+                          timeout=HUNG)
 
 
 def make_recording(path):

@@ -10,12 +10,12 @@ import zenoh
 
 from bintrack.live.bus import client_config
 from bintrack.keys import Keys
-from conftest import REPO, free_port
+from conftest import HUNG, REPO, free_port
 
 
 def health(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "bintrack.services.health", *args],
-                          capture_output=True, text=True, timeout=30, cwd=REPO)
+                          capture_output=True, text=True, timeout=HUNG, cwd=REPO)
 
 
 @pytest.fixture

@@ -31,13 +31,13 @@ from bintrack.live.stack import stack_commands
 from bintrack.trackers import BASELINES, make_tracker
 from bintrack.transition_detector import TransitionDetector
 
-from conftest import REPO, free_port
+from conftest import HUNG, REPO, free_port
 
 DARPA3 = REPO / "datasets" / "darpa-grid-3"
 LASER = REPO / "datasets" / "laser-testbed"
 
 
-def bintrack(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+def bintrack(*args: str, timeout: float = HUNG) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "bintrack.cli", *args], capture_output=True, text=True,
                           timeout=timeout, cwd=REPO)
 

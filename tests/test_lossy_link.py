@@ -23,7 +23,7 @@ from bintrack.trackers import make_tracker
 from bintrack.live.sequence_checks import SequenceCheck, SourceCheck
 from bintrack.transition_detector import TransitionDetector
 
-from conftest import REPO, write_foreign_dataset
+from conftest import HUNG, REPO, write_foreign_dataset
 
 TRACKER = "equal-weight"
 CHAIN = ("sensor_agent", "peer_agent", "basestation", "recorder")
@@ -103,7 +103,7 @@ def run_chain(dataset: Path, out: Path, endpoint: str, services, lose: int) -> d
         "recorder": services("recorder", "--out", str(out), *net, endpoint=endpoint),
     }
     replay = services("replay", str(dataset), "--speed", "0", "--wait-for", ",".join(CHAIN), endpoint=endpoint)
-    assert replay.wait(60) == 0, replay.log
+    assert replay.wait(HUNG) == 0, replay.log
     assert procs["recorder"].wait(60) == 0, procs["recorder"].log
     for name in ("sensor_agent", "peer_agent", "basestation"):
         assert procs[name].stop() == 0, procs[name].log

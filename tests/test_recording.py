@@ -33,6 +33,9 @@ from bintrack.messages import (
 )
 from bintrack.live.recording import RecordingWriter, log_time_ns, open_recording, replay_items, shift_payload
 
+from conftest import HUNG
+
+
 def output(process) -> str:
     """What a service process has logged so far (also after it exited)."""
     return process.log_path.read_text()
@@ -168,13 +171,13 @@ class Bus:
         self.session.put(f"bintrack/{self.net}/{suffix}", payload if isinstance(payload, bytes) else encode(payload),
                          attachment=self.control)
 
-    def wait_for(self, service: str, timeout: float = 20.0) -> None:
+    def wait_for(self, service: str, timeout: float = HUNG) -> None:
         deadline = time.monotonic() + timeout
         while not [r for r in self.session.liveliness().get(f"bintrack/{self.net}/alive/{service}/*") if r.ok]:
             assert time.monotonic() < deadline, f"{service} never came up"
             time.sleep(0.1)
 
-    def tick(self, t: float, timeout: float = 20.0) -> None:
+    def tick(self, t: float, timeout: float = HUNG) -> None:
         """Publish a clock tick and wait for the recorder's progress report of it."""
         self.put("clock", Clock(t=t))
         deadline = time.monotonic() + timeout
@@ -209,7 +212,7 @@ def test_bad_payloads_are_counted_not_recorded_and_the_recorder_goes_on(tmp_path
     bus.tick(1.5)
     assert recorder.proc.poll() is None
     bus.put("control/eos", EndOfStream(t=1.0))
-    assert recorder.wait(20) == 0
+    assert recorder.wait(HUNG) == 0
     log = output(recorder)
     assert "5 bad payloads" in log, log
     for sender in ("raw/n0", "raw/n1", "raw/n2", "no/such/key"):
@@ -229,7 +232,7 @@ def test_recorder_waits_for_upstream_done_before_finalising(tmp_path, zenoh_rout
         time.sleep(0.5)
         assert recorder.proc.poll() is None, "finalised before the base station was done"
         bus.put("control/done/basestation/b1", EndOfStream(t=2.0))
-        assert recorder.wait(20) == 0, output(recorder)
+        assert recorder.wait(HUNG) == 0, output(recorder)
     finally:
         token.undeclare()
     assert [r.kind for r in open_recording(out).records()] == ["eos", "tracks", "done"]
@@ -244,7 +247,7 @@ def test_a_stopped_recorder_leaves_a_readable_file(tmp_path, zenoh_router, servi
         bus.put(f"raw/n{i % 4}", RawSample(t=i / 10, sensor=f"n{i % 4}", value=i % 2))
     bus.tick(5.0)
     recorder.proc.send_signal(getattr(signal, how))
-    code = recorder.wait(20)
+    code = recorder.wait(HUNG)
     recording = open_recording(out)
     assert recording.deployment == DEPLOYMENT
     if how == "SIGTERM":
@@ -270,7 +273,7 @@ def test_export_of_hand_published_results(tmp_path, zenoh_router, services, bus,
     bus.put("laser/objects", LineObjectEstimate(object=1, vx=3.5, **obj))  # refined later: the last one counts
     bus.put("motion/velocity", VelocityEstimate(t=1.0, method="motion-rw", vx=1.0, vy=2.0, x=3.0, y=4.0))
     bus.put("control/eos", EndOfStream(t=3.0))
-    assert recorder.wait(20) == 0, output(recorder)
+    assert recorder.wait(HUNG) == 0, output(recorder)
 
     def export(what: str) -> str:
         target = tmp_path / f"{what}.csv"
@@ -298,5 +301,5 @@ def test_export_of_a_missing_or_corrupt_recording(tmp_path, capsys, content):
 
 def test_recorder_rejects_an_unusable_out(tmp_path, zenoh_router, services):
     recorder = services("recorder", "--out", str(tmp_path / "nowhere" / "x.mcap"), endpoint=zenoh_router)
-    assert recorder.wait(20) == 2
+    assert recorder.wait(HUNG) == 2
     assert "does not exist" in output(recorder)

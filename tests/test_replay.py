@@ -19,7 +19,7 @@ from bintrack.messages import Clock, Deployment, DiskSensor, EndOfStream, RawSam
 from bintrack.live.recording import open_recording
 from bintrack.live.replay_schedule import Consumers, End, NothingToReplay, Pacer, Publish, Tick, schedule
 
-from conftest import REPO, free_port
+from conftest import HUNG, REPO, free_port
 
 def output(process) -> str:
     """What a service process has logged so far (also after it exited)."""
@@ -133,7 +133,7 @@ def client(endpoint: str) -> zenoh.Session:
     return zenoh.open(client_config([endpoint]))
 
 
-def wait_until(condition, timeout: float = 20.0, what: str = "condition") -> None:
+def wait_until(condition, timeout: float = HUNG, what: str = "condition") -> None:
     deadline = time.monotonic() + timeout
     while not condition():
         if time.monotonic() > deadline:
@@ -150,8 +150,8 @@ def test_dataset_into_recorder(tmp_path, zenoh_router, services):
     out = tmp_path / "run.mcap"
     recorder = services("recorder", "--out", str(out), "--net", "tiny", endpoint=zenoh_router)
     replay = services("replay", str(data), "--speed", "0", "--wait-for", "recorder", endpoint=zenoh_router)
-    assert replay.wait(30) == 0, output(replay)
-    assert recorder.wait(30) == 0, output(recorder)
+    assert replay.wait(HUNG) == 0, output(replay)
+    assert recorder.wait(HUNG) == 0, output(recorder)
 
     recording = open_recording(out)
     assert recording.complete and recording.net == "tiny"
@@ -175,14 +175,14 @@ def test_replay_of_a_recording_gives_the_same_raw_records(tmp_path, zenoh_router
     recorder = services("recorder", "--out", str(first), "--net", "darpa-grid", endpoint=zenoh_router)
     replay = services("replay", str(REPO / "datasets" / "darpa-grid-1"), "--speed", "0", "--wait-for", "recorder",
                       endpoint=zenoh_router)
-    assert replay.wait(30) == 0, output(replay)
-    assert recorder.wait(30) == 0, output(recorder)
+    assert replay.wait(HUNG) == 0, output(replay)
+    assert recorder.wait(HUNG) == 0, output(recorder)
 
     recorder = services("recorder", "--out", str(second), "--net", "darpa-grid", endpoint=zenoh_router)
     replay = services("replay", str(first), "--speed", "0", "--wait-for", "recorder", "--keys", "bintrack/*/raw/**",
                       endpoint=zenoh_router)
-    assert replay.wait(30) == 0, output(replay)
-    assert recorder.wait(30) == 0, output(recorder)
+    assert replay.wait(HUNG) == 0, output(replay)
+    assert recorder.wait(HUNG) == 0, output(recorder)
 
     a, b = open_recording(first), open_recording(second)
     assert b.deployment == a.deployment
@@ -206,11 +206,11 @@ def test_loop_keeps_event_time_increasing(tmp_path, zenoh_router, services):
         try:
             wait_until(lambda: log.read_text().count("end of stream at") >= 2, what="two passes")
             replay.send_signal(signal.SIGINT)
-            assert replay.wait(20) == 0
+            assert replay.wait(HUNG) == 0
         finally:
             replay.kill()
         record.send_signal(signal.SIGINT)
-        assert record.wait(20) == 0, log.read_text()
+        assert record.wait(HUNG) == 0, log.read_text()
     finally:
         record.kill()
 
@@ -247,7 +247,7 @@ def test_replay_waits_for_each_consumer_to_acknowledge(tmp_path, zenoh_router, s
         token = session.liveliness().declare_token("bintrack/tiny/alive/slow/2")
         wait_until(lambda: ticks == [0.0, 0.5, 1.0], what="the tick after the hold")
         session.put("bintrack/tiny/control/progress/slow/2", encode(Clock(t=10.0)))
-        assert replay.wait(20) == 0, output(replay)
+        assert replay.wait(HUNG) == 0, output(replay)
         assert ticks == [0.0, 0.5, 1.0, 1.5, 2.0]
     finally:
         if token is not None:
@@ -265,8 +265,8 @@ def test_replay_before_the_router_retries_then_works(tmp_path, services):
     router = zenoh.open(router_config([endpoint]))
     try:
         recorder = services("recorder", "--out", str(tmp_path / "late.mcap"), "--net", "tiny", endpoint=endpoint)
-        assert replay.wait(30) == 0, output(replay)
-        assert recorder.wait(30) == 0, output(recorder)
+        assert replay.wait(HUNG) == 0, output(replay)
+        assert recorder.wait(HUNG) == 0, output(recorder)
     finally:
         router.close()
     assert sum(r.kind == "raw" for r in open_recording(tmp_path / "late.mcap").records()) == 6
@@ -276,7 +276,7 @@ def test_missing_service_times_out_with_a_clear_error(tmp_path, zenoh_router, se
     data = tiny_dataset(tmp_path / "tiny")
     replay = services("replay", str(data), "--wait-for", "recorder,basestation", "--ready-timeout", "1",
                       endpoint=zenoh_router)
-    assert replay.wait(20) == 1
+    assert replay.wait(HUNG) == 1
     assert "no liveliness token from recorder, basestation on bintrack/tiny/alive/*/* after 1 s" in output(replay)
 
 
@@ -288,6 +288,6 @@ def test_missing_service_times_out_with_a_clear_error(tmp_path, zenoh_router, se
 def test_bad_source_is_one_line_and_exit_2(tmp_path, make, message):
     source = make(tmp_path)
     result = subprocess.run([sys.executable, "-m", "bintrack.cli", "replay", str(source), "--wait", "1"],
-                            capture_output=True, text=True, cwd=REPO, timeout=30)
+                            capture_output=True, text=True, cwd=REPO, timeout=HUNG)
     assert result.returncode == 2
     assert len(result.stderr.strip().splitlines()) == 1 and message in result.stderr, result.stderr

@@ -26,7 +26,7 @@ from bintrack.live.recording import open_recording
 from bintrack.view.map_messages import deployment_item, message_item
 from bintrack.view.map_server import PageFeed
 from bintrack.view.map_state import MAX_SCANS, MapState
-from conftest import REPO, free_port
+from conftest import HUNG, REPO, free_port
 
 DARPA3 = REPO / "datasets" / "darpa-grid-3"
 BROWSER_PACKAGE = "chromium-headless-shell"
@@ -135,7 +135,7 @@ class Process:
         with self._changed:
             self._changed.notify_all()
 
-    def wait_for(self, text: str, timeout: float = 60.0) -> str:
+    def wait_for(self, text: str, timeout: float = HUNG) -> str:
         with self._changed:
             found = self._changed.wait_for(
                 lambda: any(text in line for line in self.lines) or not self._reader.is_alive(), timeout)

@@ -16,11 +16,10 @@ import zenoh
 from bintrack.live.bus import client_config
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, Track, TrackSet, Transition, encode
-from conftest import REPO, free_port
+from conftest import HUNG, REPO, free_port
 
 NET = "test-watch"
 KEYS = Keys(NET)
-HUNG = 120.0  # s: the waits are on events (a line, an exit); only a hung program takes this long
 
 
 class Printer:
@@ -111,7 +110,7 @@ def test_watch_prints_each_message_on_a_line(zenoh_router, bus, what, key, messa
 
 def test_watch_without_router_fails_with_one_line():
     result = subprocess.run([sys.executable, "-m", "bintrack.cli", "watch", "-e", f"tcp/127.0.0.1:{free_port()}",
-                             "--wait", "0.2"], capture_output=True, text=True, timeout=30, cwd=REPO)
+                             "--wait", "0.2"], capture_output=True, text=True, timeout=HUNG, cwd=REPO)
     assert result.returncode == 1
     assert result.stderr.splitlines()[-1].startswith("bintrack watch: bintrack client: no Zenoh router reachable")
 

@@ -40,7 +40,7 @@ from mcap.reader import SeekingReader
 from mcap.records import Attachment, Channel, Metadata, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader
-from mcap.writer import Writer
+from mcap.writer import IndexType, Writer
 
 from bintrack import __version__
 from bintrack.formats import FormatError, deployment_text, open_input, parse_deployment
@@ -155,7 +155,11 @@ class RecordingWriter:
         self.path = Path(path)
         Keys(net)  # a valid network name
         self._handle: IO[bytes] = open(self.path, "wb")
-        self._writer = Writer(self._handle, chunk_size=chunk_size)
+        # No per-channel message indexes: the writer keeps each chunk's index in memory until the
+        # file is finalised, ~19 kB per chunk with them (a recorder flushing every 5 s grew without
+        # bound), 0.4 kB without. Readers seek by chunk index and read the chunk, as they may.
+        self._writer = Writer(self._handle, chunk_size=chunk_size,
+                              index_types=IndexType.CHUNK | IndexType.ATTACHMENT | IndexType.METADATA)
         self._writer.start(profile="", library=f"bintrack {__version__}")
         self._writer.add_metadata(RECORDING_METADATA, {"format": RECORDING_FORMAT, "net": net})
         now = time.time_ns()
