@@ -119,6 +119,7 @@ class Replay(Service):
         self.recent: deque[tuple[float, str, bytes]] = deque()
         self.recent_ticks: deque[float] = deque(maxlen=args.max_ahead + 2)
         self.resume_after: float | None = None
+        self.plan = None  # the plan of the run (an iterator), made in setup
         self.pauses = 0
 
     # -- bus wiring -------------------------------------------------------------------------
@@ -126,16 +127,18 @@ class Replay(Service):
     async def setup(self) -> None:
         payload = encode(self.deployment)
         self.serve(self.keys.deployment(), lambda query: query.reply(self.keys.deployment(), payload))
-        self.serve(self.keys.recent(), self._on_recent)
         checkpoint = self.load_checkpoint()
+        self.plan = iter(schedule(self._pass, period=self.args.clock_period, max_ahead=self.args.max_ahead,
+                                  recorded_ticks=self.recording is not None, loop=self.args.loop))
         if checkpoint is not None:
             self.resume_after, self.published = checkpoint["tick"], checkpoint["published"]
+            self._fast_forward()
+        self.serve(self.keys.recent(), self._on_recent)  # complete from here on, even after a restart
+        # history: the services already up come first (a get after subscribing could time out
+        # empty on a loaded machine, and a restarted replay then waited for services that were up)
         self._declared.append(self.session.liveliness().declare_subscriber(
-            self.keys.alive(), self.inbox.callback(self._on_alive)))
+            self.keys.alive(), self.inbox.callback(self._on_alive), history=True))
         self.subscribe(self.keys.progress(), self._on_progress)
-        # The services already up: asked once, after subscribing so that none is missed.
-        for sample in await asyncio.to_thread(self._alive_now):
-            self._on_alive(sample)
 
     def _on_recent(self, query: zenoh.Query) -> None:
         """``control/recent?after=T``: each raw sample published after the tick at T (s), in
@@ -148,12 +151,9 @@ class Replay(Service):
         for tick, key, payload in self.recent:
             if tick >= after:
                 query.reply(self.keys.recent(), payload)
-        # last, the clock tick before the newest sample: the asker knows the answer is complete
-        query.reply(self.keys.recent(), encode(Clock(t=-math.inf if self.last_tick is None else self.last_tick)))
-
-    def _alive_now(self) -> list[zenoh.Sample]:
-        replies = self.session.liveliness().get(self.keys.alive(), timeout=5.0)
-        return [reply.ok for reply in replies if reply.ok is not None]
+        # last, the clock tick before the newest sample (0 before the first): the asker knows the
+        # answer is complete
+        query.reply(self.keys.recent(), encode(Clock(t=0.0 if self.last_tick is None else self.last_tick)))
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         try:
@@ -210,19 +210,23 @@ class Replay(Service):
             return events
         return replay_items(self.recording, self._keep)
 
-    def _publish(self, action: Publish) -> None:
+    def _publish(self, action: Publish, put: bool = True) -> None:
+        """Publish the sample of ``action`` and keep a raw sample for ``recent``; with ``put``
+        False only keep it (a restarted replay rebuilding what it had published)."""
         item = action.item
         if isinstance(item, Record):
-            self._put(self.keys.prefix + item.key[len(self.source_prefix):], shift_payload(item.payload, action.shift))
+            if put:
+                self._put(self.keys.prefix + item.key[len(self.source_prefix):], shift_payload(item.payload, action.shift))
         elif isinstance(item, TruthRow):
-            self._put(self.keys.truth(), encode(TruthSample(t=action.t, target=item.target, x=item.x, y=item.y)))
+            if put:
+                self._put(self.keys.truth(), encode(TruthSample(t=action.t, target=item.target, x=item.x, y=item.y)))
         else:
             key, payload = self.keys.raw(item.sensor), encode(RawSample(t=action.t, sensor=item.sensor, value=item.value))
-            self._put(key, payload)
+            if put:
+                self._put(key, payload)
             self.recent.append((-math.inf if self.last_tick is None else self.last_tick, key, payload))
-        self.published += 1
 
-    def _ticked(self, t: float) -> None:
+    def _ticked(self, t: float, save: bool = True) -> None:
         """After the tick at ``t``: forget samples older than any consumer can still need (it has
         acknowledged a tick at most max_ahead ticks back) and checkpoint the position."""
         self.last_tick = t
@@ -230,7 +234,21 @@ class Replay(Service):
         oldest = self.recent_ticks[0]
         while self.recent and self.recent[0][0] < oldest:
             self.recent.popleft()
-        self.save_checkpoint({"tick": t, "published": self.published})
+        if save:
+            self.save_checkpoint({"tick": t, "published": self.published})
+
+    def _fast_forward(self) -> None:
+        """After a restart: walk the plan up to the tick the previous instance checkpointed,
+        publishing nothing but keeping the raw samples of the last ticks, so that ``recent``
+        answers a restarted sensor agent at once, before the stack is complete again (the
+        others wait for this replay's answer; it waits for them)."""
+        for action in self.plan:
+            if isinstance(action, Tick):
+                self._ticked(action.t, save=False)
+                if action.t >= self.resume_after:
+                    return
+            elif isinstance(action, Publish):
+                self._publish(action, put=False)
 
     def _missing(self) -> list[str]:
         """The --wait-for services with no live instance, and the router if it is lost."""
@@ -312,20 +330,14 @@ class Replay(Service):
 
     async def _play(self) -> None:
         self.pacer = pacer = Pacer(self.args.speed)
-        plan = schedule(self._pass, period=self.args.clock_period, max_ahead=self.args.max_ahead,
-                        recorded_ticks=self.recording is not None, loop=self.args.loop)
         control = self._control()
         started = last_said = time.monotonic()
         skip_ack = False
-        if self.resume_after is not None:
+        if self.resume_after is not None:  # a restart: what the previous instance published is done
             log.info("replay: restarted; resuming after the tick at t=%g s (%d samples were published)",
                      self.resume_after, self.published)
-        for action in plan:
-            if self.resume_after is not None:  # a restart: what the previous instance published is done
-                if isinstance(action, Tick) and action.t >= self.resume_after:
-                    self.resume_after, skip_ack = None, True
-                    self._ticked(action.t)
-                continue
+            self.resume_after, skip_ack = None, True
+        for action in self.plan:
             if not await self._ready_for(action, skip_ack):
                 break
             if not isinstance(action, Publish):
@@ -350,6 +362,7 @@ class Replay(Service):
                 await asyncio.sleep(0)  # let signals and progress reports in
             else:
                 self._publish(action)
+                self.published += 1
             now = time.monotonic()
             if now - last_said >= PROGRESS_INTERVAL:
                 total = f"/{self.total}" if self.total and not self.args.loop else ""
