@@ -20,6 +20,7 @@ import asyncio
 import heapq
 import logging
 import math
+import secrets
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
@@ -125,9 +126,11 @@ class Replay(Service):
     # -- bus wiring -------------------------------------------------------------------------
 
     async def setup(self) -> None:
-        payload = encode(self.deployment)
-        self.serve(self.keys.deployment(), lambda query: query.reply(self.keys.deployment(), payload))
         checkpoint = self.load_checkpoint()
+        if self.run_id is None:  # a fresh start is a new run: the others keep only its checkpoints
+            self.run_id = secrets.token_hex(8)
+        payload, run = encode(self.deployment), self.run_id.encode()
+        self.serve(self.keys.deployment(), lambda query: query.reply(self.keys.deployment(), payload, attachment=run))
         self.plan = iter(schedule(self._pass, period=self.args.clock_period, max_ahead=self.args.max_ahead,
                                   recorded_ticks=self.recording is not None, loop=self.args.loop))
         if checkpoint is not None:

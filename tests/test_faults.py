@@ -385,3 +385,31 @@ def test_recorder_splits_its_files_by_event_time(grid_slice, zenoh_router, servi
         assert ticks and ticks[-1] - ticks[0] <= 5.0, (part, ticks[0], ticks[-1])
         raw += sum(r.kind == "raw" for r in recording.records())
     assert raw == sum(1 for _ in open_dataset(grid_slice).events())
+
+
+def test_checkpoints_of_another_run_are_discarded(grid_slice, offline_rows, tmp_path, zenoh_router, services):
+    """The compose way: every service with a fixed --id and one --state-dir. A second run on
+    the same folder after replay's checkpoint is gone (a new run) must not resume what the
+    first run left: the others log it and start afresh, and the rows are the offline ones."""
+    state = tmp_path / "state"
+    state.mkdir(mode=0o700)
+    net = open_dataset(grid_slice).deployment.name
+    for run in (1, 2):
+        recording = tmp_path / f"run{run}.mcap"
+        procs = {c.name: services(c.name, *[a for a in c.args if a not in ("-e", "tcp/router:7447")],
+                                  endpoint=zenoh_router)
+                 for c in stack_commands(tracker="mcmcda", endpoint="tcp/router:7447", net=net,
+                                         source=str(grid_slice), speed=0, record=str(recording),
+                                         state_dir=str(state))}
+        assert procs["replay"].wait(HUNG) == 0, procs["replay"].log
+        assert procs["recorder"].wait(HUNG) == 0, procs["recorder"].log
+        for name in ("sensor_agent", "basestation"):
+            assert procs[name].stop() == 0, procs[name].log
+        assert exported_tracks(recording, tmp_path) == offline_rows("mcmcda"), procs["basestation"].log
+        if run == 1:
+            assert sorted(p.name for p in state.iterdir()) == [
+                f"{name}-{name}.pickle" for name in ("basestation", "recorder", "replay", "sensor_agent")]
+            (state / "replay-replay.pickle").unlink()
+        else:
+            for name in ("basestation", "sensor_agent"):
+                assert "is of another run" in procs[name].log, procs[name].log

@@ -207,7 +207,8 @@ def test_compose_runs_the_commands_bintrack_up_runs():
     compose = yaml.safe_load((REPO / "docker-compose.yml").read_text())["services"]
     expected = stack_commands(tracker="equal-weight", endpoint="tcp/router:7447", net="darpa-grid",
                               source="/data/datasets/darpa-grid-3", speed=1, loop=True,
-                              record="/data/out/recording.mcap", view_port=8080, view_bind="0.0.0.0")
+                              record="/data/out/recording.mcap", view_port=8080, view_bind="0.0.0.0",
+                              state_dir="/data/state")
     for command in expected:
         assert compose[command.name]["command"] == [command.module, *command.args], command.name
 

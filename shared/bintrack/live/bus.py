@@ -254,6 +254,7 @@ class Service:
         self.args = args
         self.keys = Keys(args.net)
         self.instance = getattr(args, "id", None) or f"{socket.gethostname()}-{os.getpid()}"
+        self.run_id: str | None = None  # the run this instance belongs to (replay's; see load_checkpoint)
         self.bad = BadInput(self.name)
         self.session: zenoh.Session | None = None
         self.loop: asyncio.AbstractEventLoop | None = None
@@ -396,17 +397,27 @@ class Service:
         replies = self.session.get(key_expr, timeout=timeout, consolidation=zenoh.ConsolidationMode.NONE)
         return [r.ok.payload.to_bytes() for r in replies if r.ok is not None]
 
+    def _deployment_replies(self) -> list[tuple[bytes, str | None]]:
+        """(payload, run id in its attachment or None) of each answer of the deployment queryable."""
+        replies = self.session.get(self.keys.deployment(), timeout=1.0)
+        return [(r.ok.payload.to_bytes(),
+                 None if r.ok.attachment is None else r.ok.attachment.to_bytes().decode(errors="replace"))
+                for r in replies if r.ok is not None]
+
     async def wait_for_deployment(self):
         """The deployment from the ``deployment`` queryable, retried until it answers."""
         from bintrack.messages import Deployment
 
         warned = False
         while not self.stopping.is_set():
-            for payload in await asyncio.to_thread(self.query, self.keys.deployment(), 1.0):
+            for payload, run in await asyncio.to_thread(self._deployment_replies):
                 try:
-                    return decode(Deployment, payload)
+                    deployment = decode(Deployment, payload)
                 except MessageError as exc:
                     self.bad.report(self.keys.deployment(), exc.reason)
+                    continue
+                self.run_id = run
+                return deployment
             if not warned:
                 log.info("%s: waiting for the deployment on %s", self.name, self.keys.deployment())
                 warned = True
@@ -421,25 +432,39 @@ class Service:
         return None if not folder else os.path.join(folder, f"{self.name}-{self.instance}.pickle")
 
     def load_checkpoint(self):
-        """The object saved by :meth:`save_checkpoint` before a restart, or None (a refused
-        checkpoint is logged, and the service starts afresh)."""
+        """The object saved by :meth:`save_checkpoint` before a restart, or None: none saved, or
+        refused (logged; the service starts afresh) because it is unsafe or damaged, or of an
+        earlier run. A run is replay's: it names it in its answers on ``deployment``, and a
+        service that asked for the deployment first (every one but replay) keeps only a
+        checkpoint of the same run, so a stack started afresh on an old state folder (a compose
+        volume) does not resume what another run left. Replay resumes its own run."""
         path = self.checkpoint_path()
         if path is None:
             return None
         try:
-            state = checkpoint.load_checkpoint(path)
+            saved = checkpoint.load_checkpoint(path)
         except checkpoint.CheckpointRefused as exc:
             log.warning("%s: checkpoint %s %s; starting afresh", self.name, path, exc)
             return None
-        if state is not None:
-            log.info("%s %s: restarted; resuming from its checkpoint", self.name, self.instance)
-        return state
+        if saved is None:
+            return None
+        if not isinstance(saved, dict) or set(saved) != {"run", "state"}:
+            log.warning("%s: checkpoint %s is not of this version; starting afresh", self.name, path)
+            return None
+        if self.run_id is not None and saved["run"] != self.run_id:
+            log.warning("%s: checkpoint %s is of another run (%s; replay's is %s); starting afresh",
+                        self.name, path, saved["run"], self.run_id)
+            return None
+        self.run_id = saved["run"]
+        log.info("%s %s: restarted; resuming from its checkpoint", self.name, self.instance)
+        return saved["state"]
 
     def save_checkpoint(self, state) -> None:
-        """Save ``state`` atomically, private to this user, if ``--state-dir`` is set."""
+        """Save ``state`` with the run it belongs to, atomically and private to this user, if
+        ``--state-dir`` is set."""
         path = self.checkpoint_path()
         if path is not None:
-            checkpoint.save_checkpoint(path, state)
+            checkpoint.save_checkpoint(path, {"run": self.run_id, "state": state})
 
     def _watch_router(self) -> None:
         """Log the loss and return of the router (Zenoh transport events). While it is lost the

@@ -28,13 +28,15 @@ class ServiceCommand:
 def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None = None, speed: float = 1.0,
                    loop: bool = False, record: str | None = None, estimates: str | None = None,
                    tracker_args: tuple[str, ...] = (), view_port: int | None = None,
-                   view_bind: str = "127.0.0.1") -> list[ServiceCommand]:
+                   view_bind: str = "127.0.0.1", state_dir: str | None = None) -> list[ServiceCommand]:
     """The services in start order: the sensor agents, the peer agents if ``tracker`` runs on
     them, the base station, the recorder if ``record``, the view if ``view_port``, and last the replay of ``source`` (if
     any), which waits for all the others. ``estimates``: the peer tracker whose estimates
     join mcmcda's reports (the peer agents run it); ``tracker_args``: further base-station
     options of the tracker, for the service that runs it; ``view_port``: the map (the view
-    service) on http://``view_bind``:``view_port``/, None for no map."""
+    service) on http://``view_bind``:``view_port``/, None for no map; ``state_dir``: each service
+    but the view keeps its checkpoint there under a fixed ``--id`` (its name), so that a
+    restarted container resumes (compose; ``up`` gives its own)."""
     bus = ("-e", endpoint, "--net", net)
     services = [ServiceCommand("sensor_agent", bus)]
     if runs_on_peers(tracker):
@@ -55,6 +57,9 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
         replay = [source, "--speed", _number(speed), *(["--loop"] if loop else []),
                   "--wait-for", ",".join(s.name for s in services)]
         services.append(ServiceCommand("replay", (*replay, *bus)))
+    if state_dir is not None:
+        services = [s if s.name == "view" else ServiceCommand(s.name, (*s.args, "--id", s.name, "--state-dir", state_dir))
+                    for s in services]
     return services
 
 
