@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import threading
 
 import zenoh
 
-from bintrack.live.bus import configure_logging, log, zenoh_config
+from bintrack.live.bus import PARENT_ENV, configure_logging, log, zenoh_config
 
 
 def mesh_config(args: argparse.Namespace) -> zenoh.Config:
@@ -65,9 +66,12 @@ def run(args: argparse.Namespace) -> int:
     listener = session.info.declare_transport_events_listener(on_event, history=True)
     log.info("router %s (%s): listening on %s%s", args.name, str(session.info.zid())[:8], ", ".join(args.listen),
              f", meshed with {', '.join(args.connect)}" if args.connect else "")
+    parent = os.environ.get(PARENT_ENV)  # under `bintrack up`: end with it
     try:
         while not stop.wait(0.5):
-            pass
+            if parent and os.getppid() != int(parent):
+                log.warning("router %s: its supervisor (pid %s) is gone; stopping", args.name, parent)
+                break
     finally:
         listener.undeclare()
         session.close()
