@@ -116,3 +116,22 @@ def test_merged_tracks_on_a_chain_of_three_routers(field, services, tmp_path):
             if router.proc.poll() is None:
                 router.proc.kill()
                 router.proc.wait()
+
+
+def test_up_with_regions_runs_a_router_and_a_base_station_per_region_and_merges(field, tmp_path):
+    """``bintrack up --regions 4``: four routers on 127.0.0.2–5 meshed with up's own, the merge;
+    the recorded ``tracks`` are the offline ``bintrack track --regions`` rows."""
+    from conftest import free_port
+
+    recording = tmp_path / "run.mcap"
+    result = subprocess.run([sys.executable, "-m", "bintrack.cli", "up", str(field / "field"), "--tracker", "mcmcda",
+                             "--regions", "4", "--speed", "0", "--exit-at-end", "--no-view", "--record", str(recording),
+                             "--listen", f"tcp/127.0.0.1:{free_port()}"],
+                            capture_output=True, text=True, cwd=REPO, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    for i, region in enumerate(REGIONS):
+        assert f"router {region} (" in result.stderr and f"tcp/127.0.0.{i + 2}:" in result.stderr
+    bintrack("export", str(recording), "--what", "tracks", "--out", str(tmp_path / "live.csv"), cwd=tmp_path)
+    live, offline = read_tracks(tmp_path / "live.csv"), read_tracks(field / "regions.csv")
+    assert [(r.t, r.track) for r in live] == [(r.t, r.track) for r in offline]
+    assert max(abs(a.x - b.x) + abs(a.y - b.y) for a, b in zip(live, offline)) < 1e-6
