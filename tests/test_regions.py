@@ -177,3 +177,12 @@ def test_the_merge_waits_for_every_live_region_and_a_lost_one_turns_stale():
     assert merge.progress("west", 1.0) == []
     (third,) = merge.progress("east", 1.0)
     assert not any(t.stale for t in third.tracks) and {t.track for t in third.tracks} == {east_id, 1 - east_id}
+
+
+def test_watch_shows_the_region_and_staleness_of_merged_tracks():
+    from bintrack.cli.watch_command import format_trackset
+
+    merged = TrackSet(t=1.0, tracker="mcmcda", tracks=[Track(track=0, x=1, y=2, region="r0c0"),
+                                                        Track(track=1, x=3, y=4, region="r1c1", stale=True)])
+    assert format_trackset(merged) == ("t=1.000 tracker=mcmcda tracks=2 | #0 (1.00, 2.00) v=(-, -) r0c0 | "
+                                       "#1 (3.00, 4.00) v=(-, -) r1c1 stale")

@@ -135,3 +135,52 @@ def test_up_with_regions_runs_a_router_and_a_base_station_per_region_and_merges(
     live, offline = read_tracks(tmp_path / "live.csv"), read_tracks(field / "regions.csv")
     assert [(r.t, r.track) for r in live] == [(r.t, r.track) for r in offline]
     assert max(abs(a.x - b.x) + abs(a.y - b.y) for a, b in zip(live, offline)) < 1e-6
+
+
+def test_a_lost_region_is_logged_at_once_and_its_tracks_turn_stale_while_the_others_go_on(field, services,
+                                                                                          zenoh_router):
+    """Mid-run, the base station of a region that has a track is killed: the merge logs it within
+    2 s, keeps that track in ``tracks`` with ``stale: true`` (not silently frozen) and goes on
+    merging the other regions to the end of the run."""
+    net = "darpa-grid"
+    keys = Keys(net)
+    stations = {}
+    for region in REGIONS:
+        services("sensor_agent", "--region", region, "--net", net, endpoint=zenoh_router)
+        stations[region] = services("basestation", "--tracker", "mcmcda", "--region", region, "--net", net,
+                                    endpoint=zenoh_router)
+    merge = services("merge", "--net", net, endpoint=zenoh_router)
+    merged: list[TrackSet] = []
+    done, killed = threading.Event(), {}
+
+    def on_tracks(sample) -> None:
+        tracks = decode(TrackSet, sample.payload.to_bytes())
+        merged.append(tracks)
+        if not killed and tracks.t >= 40.0:
+            live = [tr.region for tr in tracks.tracks if tr.region is not None]
+            if live:  # a region with a track now: its base station dies
+                killed["region"], killed["t"], killed["at"] = live[0], tracks.t, time.monotonic()
+                stations[live[0]].proc.kill()
+                text = f"region {live[0]}'s base station is gone"
+                threading.Thread(target=lambda: killed.setdefault("logged", wait_logged(merge, text, 10))).start()
+
+    session = zenoh.open(client_config([zenoh_router]))
+    subscribers = [session.declare_subscriber(keys.tracks(), on_tracks),
+                   session.declare_subscriber(keys.done("merge"), lambda s: done.set())]
+    try:
+        # replay does not wait for the base stations (with basestation*4 it would hold the clock
+        # once one is gone); one that starts late repairs the transitions it missed
+        services("replay", str(field / "field"), "--speed", "0", "--net", net, "--wait-for", "sensor_agent*4,merge",
+                 endpoint=zenoh_router)
+        assert done.wait(400), f"the merge never finished:\n{merge.log[-3000:]}"
+    finally:
+        for subscriber in subscribers:
+            subscriber.undeclare()
+        session.close()
+    region = killed["region"]
+    assert killed.get("logged", float("inf")) - killed["at"] < 2.0, merge.log[-3000:]
+    after = [m for m in merged if m.t > killed["t"]]
+    assert after and after[-1].t >= 85.0, "the merge stopped with the region"
+    theirs = [tr for m in after for tr in m.tracks if tr.region == region]
+    assert theirs and all(tr.stale for tr in theirs)
+    assert any(not tr.stale for m in after for tr in m.tracks)  # the other regions go on

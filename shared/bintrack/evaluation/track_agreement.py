@@ -19,7 +19,9 @@ class Agreement:
     """``scans``: scans in either output; ``count_equal``: scans with as many tracks in both;
     ``gaps``: the distance (units) of each matched pair of tracks; ``split``: reference tracks
     matched to more than one identity of the other output (an identity lost); ``joined``:
-    identities of the other output matched to more than one reference track."""
+    identities of the other output matched to more than one reference track; ``switches``: times
+    a reference track, kept under one identity, was matched to another identity of the other
+    output than at its previous match (an identity lost where the reference kept it)."""
 
     scans: int = 0
     count_equal: int = 0
@@ -27,6 +29,7 @@ class Agreement:
     gaps: list[float] = field(default_factory=list)
     split: dict[int, set[int]] = field(default_factory=dict)
     joined: dict[int, set[int]] = field(default_factory=dict)
+    switches: int = 0
 
     @property
     def max_gap(self) -> float:
@@ -39,7 +42,7 @@ class Agreement:
     def summary(self) -> str:
         return (f"{self.count_equal}/{self.scans} scans with the same count; matched pairs {len(self.gaps)}, "
                 f"max gap {self.max_gap:.3f}, {100 * self.within(0.5):.1f}% within 0.5; "
-                f"{len(self.split)} identities split, {len(self.joined)} joined")
+                f"{self.switches} identity switches ({len(self.split)} split, {len(self.joined)} joined)")
 
 
 def agreement(reference: Iterable[TrackRow], other: Iterable[TrackRow], gate: float = 5.0) -> Agreement:
@@ -53,6 +56,7 @@ def agreement(reference: Iterable[TrackRow], other: Iterable[TrackRow], gate: fl
     result = Agreement()
     ids: dict[int, set[int]] = defaultdict(set)
     back: dict[int, set[int]] = defaultdict(set)
+    last: dict[int, int] = {}
     for t in sorted(by_t):
         ref, oth = by_t[t]
         result.scans += 1
@@ -67,6 +71,9 @@ def agreement(reference: Iterable[TrackRow], other: Iterable[TrackRow], gate: fl
             if cost[i, j] <= gate:
                 result.gaps.append(float(cost[i, j]))
                 ids[ref[i].track].add(oth[j].track)
+                if last.get(ref[i].track, oth[j].track) != oth[j].track:
+                    result.switches += 1
+                last[ref[i].track] = oth[j].track
                 back[oth[j].track].add(ref[i].track)
     result.split = {k: v for k, v in ids.items() if len(v) > 1}
     result.joined = {k: v for k, v in back.items() if len(v) > 1}
