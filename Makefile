@@ -60,6 +60,7 @@ datasets: $(STAMP)
 	$(BINTRACK) simulate darpa-grid --people 1 --seed 1 --out datasets/darpa-grid-1
 	$(BINTRACK) simulate darpa-grid --people 2 --seed 2 --out datasets/darpa-grid-2
 	$(BINTRACK) simulate darpa-grid --people 3 --seed 3 --out datasets/darpa-grid-3
+	$(BINTRACK) simulate darpa-grid --people 3 --seed 3 --regions 2x1 --out datasets/darpa-grid-3-sites
 	$(BINTRACK) simulate laser-testbed --seed 1 --out datasets/laser-testbed
 
 clean:

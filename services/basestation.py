@@ -10,6 +10,12 @@
   ``tracks`` (mcmcda), ``laser/objects`` (adaptive-basis), ``motion/velocity`` (velocity-plane,
   svm, ppr, motion-rw).
 
+With ``--region NAME`` (a region of the deployment's ``regions``) it takes only the transitions
+of that region's sensors and of those within a border band two sensing ranges wide
+(``--band``), and publishes on ``region/<NAME>/{fusion/reports,tracks}`` (local track ids) with
+``region/<NAME>/progress`` after each tick and a ``region/<NAME>/alive`` token; the ``merge``
+service makes the network's ``tracks`` of the regions'.
+
 The ``tracks`` queryable returns the latest ``TrackSet`` (``tracks?after=T``: the recent ones
 after T, for a recorder that restarted or lost its router).
 """
@@ -17,6 +23,7 @@ after T, for a recorder that restarted or lost its router).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections import deque
 from dataclasses import replace
@@ -30,6 +37,7 @@ from bintrack.errors import CommandError
 from bintrack.messages import (Clock, LineObjectEstimate, LocalEstimate, Message, PositionReports, Track, TrackSet,
                                VelocityEstimate, encode)
 from bintrack.ordering import ReorderBuffer
+from bintrack.regions import RegionMap
 from bintrack.pipeline import SINGLE_TARGET_TRACK
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_options
 from bintrack.trackers import TRACKER_NAMES, check_options, make_tracker, runs_on_peers
@@ -49,7 +57,21 @@ class Basestation(TransitionConsumer):
             return
         self.latest: TrackSet | None = None
         self.history: deque[TrackSet] = deque(maxlen=TRACKS_HISTORY)
-        self.serve(self.keys.tracks(), self.on_tracks_query)
+        network, region = deployment, self.args.region
+        if region is not None:
+            if runs_on_peers(self.args.tracker):
+                raise CommandError(f"--region needs a base-station tracker (mcmcda), not {self.args.tracker}")
+            try:
+                deployment = RegionMap(network).sub_deployment(region, self.args.band)
+            except ValueError as exc:
+                raise CommandError(str(exc)) from None
+            self.tracks_key, self.reports_key = self.keys.region_tracks(region), self.keys.region_reports(region)
+            self._declared.append(self.session.liveliness().declare_token(self.keys.region_alive(region)))
+            log.info("%s: region %s, %d of the %d sensors (border band included)", self.name, region,
+                     len(deployment.sensors), len(network.sensors))
+        else:
+            self.tracks_key, self.reports_key = self.keys.tracks(), self.keys.fusion_reports()
+        self.serve(self.tracks_key, self.on_tracks_query)
         if not runs_on_peers(self.args.tracker):
             options = tracker_options(self.args)
             try:
@@ -59,7 +81,7 @@ class Basestation(TransitionConsumer):
             except ValueError as exc:
                 raise CommandError(str(exc)) from None
             peers = ("peer_agent",) if self.args.estimates is not None else ()
-            self.start_intake(deployment, tracker, upstream=("sensor_agent", *peers))
+            self.start_intake(deployment, tracker, upstream=("sensor_agent", *peers), network=network)
             if self.args.estimates is not None:
                 self.subscribe(self.keys.estimate(), self.on_peer_report)
             return
@@ -123,14 +145,21 @@ class Basestation(TransitionConsumer):
             if isinstance(out, TrackSet):
                 self.latest = out
                 self.history.append(out)
-                self.publish(self.keys.tracks(), out)
+                self.publish(self.tracks_key, out)
             elif isinstance(out, PositionReports):
-                self.publish(self.keys.fusion_reports(), out)
+                self.publish(self.reports_key, out)
             elif isinstance(out, LineObjectEstimate):
                 self.publish(self.keys.laser_objects(), out)
                 self.log_tracker_warnings()
             elif isinstance(out, VelocityEstimate):
                 self.publish(self.keys.motion_velocity(), out)
+
+    def report_progress(self, t: float, sent: int | None = None) -> None:
+        if self.args.region is not None:  # the merge's watermark: the scans up to here are out
+            # advance(w) emitted the scans strictly before w = t − lateness
+            final = math.nextafter(t - self.args.lateness, -math.inf)
+            self.publish(self.keys.region_progress(self.args.region), Clock(t=final))
+        super().report_progress(t, sent)
 
     def log_tracker_warnings(self) -> None:
         """Log each warning the tracker has raised (adaptive-basis: a frame misfit) once."""
@@ -151,7 +180,7 @@ class Basestation(TransitionConsumer):
         after = query.parameters.get("after")
         if after is None:
             if self.latest is not None:
-                query.reply(self.keys.tracks(), encode(self.latest))
+                query.reply(self.tracks_key, encode(self.latest))
             return
         try:
             after = float(after)
@@ -160,7 +189,7 @@ class Basestation(TransitionConsumer):
             return
         for tracks in self.history:
             if tracks.t > after:
-                query.reply(self.keys.tracks(), encode(tracks))
+                query.reply(self.tracks_key, encode(tracks))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -171,6 +200,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "at least the peer agents' lateness plus one clock period)")
     parser.add_argument("--speed", type=positive_float,
                         help="mcmcda: the fastest target; motion-rw: the initial speed guess; units/s")
+    parser.add_argument("--region", metavar="NAME", help="serve this region of the deployment's regions only")
+    parser.add_argument("--band", type=positive_float, metavar="D",
+                        help="with --region: width of the border band whose sensors are taken too, units "
+                        "(default: two of each sensor's sensing ranges)")
     add_tracker_arguments(parser)
     parser.add_argument("--id", help="instance id (default: host-pid)")
     add_bus_arguments(parser)

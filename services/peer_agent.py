@@ -1,6 +1,6 @@
 """Peer agent: hosts the nodes' trackers (arc, sector and the paper-001 baselines).
 
-``python -m bintrack.services.peer_agent --tracker NAME [--sensors ID,…]`` hears the
+``python -m bintrack.services.peer_agent --tracker NAME [--sensors ID,…] [--region NAME]`` hears the
 transitions of the network, repairs ``seq`` gaps from the sensors' ``state`` queryables, feeds
 the tracker in event-time order (watermark = clock tick − ``--lateness``, ties by sensor id)
 and publishes each hosted node's ``LocalEstimate`` on ``peer/<node>/estimate``.
@@ -18,6 +18,7 @@ from bintrack.errors import CommandError
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_options
 from bintrack.trackers import PEER_TRACKERS, make_tracker
 from bintrack.live.transition_intake import TransitionConsumer
+from bintrack.regions import RegionMap
 
 
 class PeerAgent(TransitionConsumer):
@@ -28,11 +29,21 @@ class PeerAgent(TransitionConsumer):
         if deployment is None:
             return
         self.hosted = set(self.args.sensors.split(",")) if self.args.sensors else None
+        network = deployment
+        if self.args.region is not None:
+            regions = RegionMap(deployment)
+            try:
+                own = set(regions.own_sensors(self.args.region))
+            except ValueError as exc:
+                raise CommandError(f"--region: {exc}") from None
+            self.hosted = own if self.hosted is None else self.hosted & own
+            # a node's neighbours are within two sensing ranges: that band's transitions are needed
+            deployment = regions.sub_deployment(self.args.region)
         try:
             tracker = make_tracker(self.args.tracker, deployment, tracker_options(self.args))
         except ValueError as exc:
             raise CommandError(str(exc)) from None
-        self.start_intake(deployment, tracker)
+        self.start_intake(deployment, tracker, network=network)
 
     def emit(self, outputs) -> None:
         for estimate in outputs:
@@ -44,6 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m bintrack.services.peer_agent", description=__doc__.splitlines()[0])
     parser.add_argument("--tracker", required=True, choices=PEER_TRACKERS, help="tracker the nodes run")
     parser.add_argument("--sensors", metavar="ID,…", help="nodes whose estimates this agent publishes (default: all)")
+    parser.add_argument("--region", metavar="NAME",
+                        help="publish the estimates of the nodes placed in this region (with --sensors: those of "
+                        "them in it); takes the transitions of the nodes within two sensing ranges of it")
     parser.add_argument("--speed", type=positive_float, help="target speed, units/s, for trackers that use one")
     add_tracker_arguments(parser)
     parser.add_argument("--lateness", type=positive_float, default=1.0,

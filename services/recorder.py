@@ -41,10 +41,11 @@ from bintrack.live.recording import KIND_TYPES, RecordingWriter, event_time, ope
 
 log = logging.getLogger("bintrack")
 
-UPSTREAM = ("sensor_agent", "peer_agent", "basestation")
+UPSTREAM = ("sensor_agent", "peer_agent", "basestation", "merge")
 # outputs a restarted service may send again, recorded once (transitions are not here: they
 # carry their seq, and remembering them per sensor would cost memory that grows for long)
-RESULTS = frozenset({"estimate", "fusion_reports", "tracks", "laser_objects", "motion_velocity"})
+RESULTS = frozenset({"estimate", "fusion_reports", "tracks", "laser_objects", "motion_velocity", "region_reports",
+                     "region_tracks"})
 FLUSH_INTERVAL, FLUSH_TICKS = 5.0, 64  # s of wall clock or clock ticks between two flushes of the file
 CHUNK_SIZE = 1024 * 1024  # bytes: few chunks, so that the chunk index kept in memory stays small
 DEDUPE_AFTER_RETURN = 1024  # result messages checked for duplicates after a service came back
@@ -203,7 +204,7 @@ class Recorder(Service):
         except (ValueError, KeyError):
             self.bad.report(key, "unknown key: not a key of a bintrack message")
             return
-        if parsed.kind == "progress":
+        if parsed.kind in ("progress", "region_progress"):
             return
         message = self.decode(cls, sample)
         if message is None:

@@ -63,7 +63,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-ahead", type=int_at_least(1), default=1, metavar="N",
                         help="clock ticks that may be unacknowledged by the slowest service (default: %(default)s)")
     parser.add_argument("--wait-for", action="append", default=[], metavar="SERVICE[,SERVICE…]",
-                        help="publish nothing until each of these services holds a liveliness token; repeatable")
+                        help="publish nothing until each of these services holds a liveliness token (SERVICE*N: N "
+                        "instances of it); repeatable")
     parser.add_argument("--ready-timeout", type=positive_float, default=60.0, metavar="S",
                         help="how long to wait for the --wait-for services, s (default: %(default)s)")
     parser.add_argument("--keys", action="append", default=[], type=_key_expr, metavar="KEYEXPR",
@@ -255,7 +256,11 @@ class Replay(Service):
 
     def _missing(self) -> list[str]:
         """The --wait-for services with no live instance, and the router if it is lost."""
-        missing = [w for w in self.wanted if not any(service == w for service, _ in self.alive)]
+        missing = []
+        for wanted in self.wanted:  # NAME, or NAME*N: N live instances of it
+            name, _, count = wanted.partition("*")
+            if sum(service == name for service, _ in self.alive) < (int(count) if count.isdigit() else 1):
+                missing.append(wanted)
         return missing + ["the router"] if self.router_lost_at is not None else missing
 
     async def _hold_while_missing(self, t: float) -> bool:

@@ -1,7 +1,7 @@
 """Sensor agent: raw samples of its sensors → transitions (papers 000, 001).
 
-``python -m bintrack.services.sensor_agent [--sensors ID,…]`` hosts any number of a
-deployment's sensors (all by default), each as an asyncio task with a bounded queue. A sensor
+``python -m bintrack.services.sensor_agent [--sensors ID,…] [--region NAME]`` hosts any number
+of a deployment's sensors (all by default; those placed in a region with ``--region``), each as an asyncio task with a bounded queue. A sensor
 publishes a ``Transition`` on ``sensor/<id>/transition`` only when its status changes, and
 answers its ``sensor/<id>/state`` queryable with its status, last ``seq`` and, for a query
 ``…/state?since=N``, the recent transitions after seq N so a receiver can repair a gap.
@@ -20,6 +20,7 @@ from bintrack.live.bus import Service, add_bus_arguments, log, service_main
 from bintrack.formats import Event, check_value
 from bintrack.keys import parse_key
 from bintrack.messages import Clock, EndOfStream, MessageError, RawSample, SensorState, Transition, decode, encode
+from bintrack.regions import RegionMap
 from bintrack.transition_detector import TransitionDetector
 
 HISTORY = 256  # transitions kept per sensor for gap repair …
@@ -86,7 +87,18 @@ class SensorAgent(Service):
         if deployment is None:
             return
         self.sensors = deployment.by_id()
-        hosted = self.args.sensors.split(",") if self.args.sensors else list(self.sensors)
+        if self.args.region is not None:
+            try:
+                hosted = RegionMap(deployment).own_sensors(self.args.region)
+            except ValueError as exc:
+                log.error("%s: --region: %s", self.name, exc)
+                self.exit_status = 2
+                self.stop()
+                return
+            if self.args.sensors:
+                hosted = [s for s in hosted if s in set(self.args.sensors.split(","))]
+        else:
+            hosted = self.args.sensors.split(",") if self.args.sensors else list(self.sensors)
         unknown = [s for s in hosted if s not in self.sensors]
         if unknown:
             log.error("%s: --sensors names ids not in the deployment: %s", self.name, ", ".join(unknown))
@@ -238,6 +250,9 @@ def _optional_int(text: str | None) -> int | None:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m bintrack.services.sensor_agent", description=__doc__.splitlines()[0])
     parser.add_argument("--sensors", metavar="ID,…", help="sensor ids to host (default: every sensor of the deployment)")
+    parser.add_argument("--region", metavar="NAME",
+                        help="host the sensors placed in this region of the deployment's regions (with --sensors: "
+                        "those of them in it)")
     parser.add_argument("--id", help="instance id (default: host-pid)")
     parser.add_argument("--lose", type=int, default=0, metavar="N",
                         help="testing: do not publish every Nth transition (a lossy link); receivers repair the gaps")

@@ -469,7 +469,7 @@ def _dataset_commands():
 def test_shipped_datasets_are_remade_byte_for_byte(tmp_path, capsys):
     commands = _dataset_commands()
     assert {Path(argv[argv.index("--out") + 1]).name for argv in commands} == {
-        "darpa-grid-1", "darpa-grid-2", "darpa-grid-3", "laser-testbed"}
+        "darpa-grid-1", "darpa-grid-2", "darpa-grid-3", "darpa-grid-3-sites", "laser-testbed"}
     for argv in commands:
         shipped = REPO / argv[argv.index("--out") + 1]
         out = tmp_path / shipped.name

@@ -71,6 +71,23 @@ class Keys:
     def tracks(self) -> str:
         return f"{self.prefix}/tracks"
 
+    def region_reports(self, region: str = "*") -> str:
+        """A region's base station: its ``PositionReports`` (DESIGN §9)."""
+        return f"{self.prefix}/region/{self._region(region)}/fusion/reports"
+
+    def region_tracks(self, region: str = "*") -> str:
+        """A region's base station: its ``TrackSet`` (local ids); the merge makes ``tracks`` of them."""
+        return f"{self.prefix}/region/{self._region(region)}/tracks"
+
+    def region_progress(self, region: str = "*") -> str:
+        """A region's base station: a ``Clock`` after each tick, the event time up to which its
+        tracks are final (every scan at or before it was published)."""
+        return f"{self.prefix}/region/{self._region(region)}/progress"
+
+    def region_alive(self, region: str = "*") -> str:
+        """Liveliness token of a region's base station (one per region)."""
+        return f"{self.prefix}/region/{self._region(region)}/alive"
+
     def laser_objects(self) -> str:
         return f"{self.prefix}/laser/objects"
 
@@ -114,6 +131,10 @@ class Keys:
         return f"{service}/{instance}"
 
     @staticmethod
+    def _region(region: str) -> str:
+        return region if region == "*" else _chunk(region, "region name")
+
+    @staticmethod
     def _sensor(sensor: str) -> str:
         return sensor if sensor == "*" else check_sensor_id(sensor)
 
@@ -122,13 +143,19 @@ class Keys:
 class ParsedKey:
     """What a concrete key names: ``kind`` is one of raw, transition, state, estimate,
     fusion_reports, tracks, laser_objects, motion_velocity, truth, deployment, clock, eos, alive,
-    progress, done (the last two are flow control, beyond DESIGN §3)."""
+    progress, done (the last two are flow control, beyond DESIGN §3), and per region (``region``)
+    region_reports, region_tracks, region_progress, region_alive."""
 
     net: str
     kind: str
     sensor: str | None = None
     service: str | None = None
     instance: str | None = None
+    region: str | None = None
+
+
+_PER_REGION = {"fusion/reports": "region_reports", "tracks": "region_tracks", "progress": "region_progress",
+               "alive": "region_alive"}
 
 
 def parse_key(key: str) -> ParsedKey:
@@ -146,6 +173,8 @@ def parse_key(key: str) -> ParsedKey:
         for kind, (head, tail) in _PER_SENSOR.items():
             if rest[0] == head and rest[2] == tail:
                 return ParsedKey(net, kind, sensor=rest[1])
+    if len(rest) >= 3 and rest[0] == "region" and rest[1] and "/".join(rest[2:]) in _PER_REGION:
+        return ParsedKey(net, _PER_REGION["/".join(rest[2:])], region=rest[1])
     if len(rest) == 3 and rest[0] == "alive" and rest[1] and rest[2]:
         return ParsedKey(net, "alive", service=rest[1], instance=rest[2])
     if len(rest) == 4 and rest[0] == "control" and rest[1] in ("progress", "done") and rest[2] and rest[3]:

@@ -166,6 +166,42 @@ class Region(BaseModel):
 Point = tuple[float, float]
 
 
+REGION_NAME_PATTERN = r"^[A-Za-z0-9_.-]+$"
+
+
+class RegionArea(BaseModel):
+    """One named region of a deployment served by its own base station: a rectangle
+    (``xmin``, ``ymin``, ``xmax``, ``ymax``) or a ``polygon`` ([[x, y], …], deployment units)."""
+
+    model_config = ConfigDict(extra="ignore", allow_inf_nan=False, frozen=True)
+    name: str = Field(pattern=REGION_NAME_PATTERN, description="region name, a key-expression chunk")
+    xmin: float | None = None
+    ymin: float | None = None
+    xmax: float | None = None
+    ymax: float | None = None
+    polygon: list[Point] | None = Field(None, description="vertices in order, deployment units")
+
+    @model_validator(mode="after")
+    def _one_shape(self):
+        corners = (self.xmin, self.ymin, self.xmax, self.ymax)
+        if self.polygon is not None:
+            if any(c is not None for c in corners):
+                raise ValueError(f"region {self.name!r}: give a rectangle or a polygon, not both")
+            if len(self.polygon) < 3:
+                raise ValueError(f"region {self.name!r}: a polygon needs at least 3 vertices")
+        elif any(c is None for c in corners):
+            raise ValueError(f"region {self.name!r}: needs xmin, ymin, xmax, ymax or a polygon")
+        elif not (self.xmin < self.xmax and self.ymin < self.ymax):
+            raise ValueError(f"region {self.name!r} needs xmin < xmax and ymin < ymax")
+        return self
+
+    def vertices(self) -> list[Point]:
+        """The outline, deployment units (a rectangle's four corners counter-clockwise)."""
+        if self.polygon is not None:
+            return [tuple(p) for p in self.polygon]
+        return [(self.xmin, self.ymin), (self.xmax, self.ymin), (self.xmax, self.ymax), (self.xmin, self.ymax)]
+
+
 class CalibrationPass(BaseModel):
     model_config = ConfigDict(extra="ignore", allow_inf_nan=False, frozen=True, populate_by_name=True)
     pass_: int = Field(alias="pass", ge=1, description="pass number, from 1 in time order")
@@ -195,6 +231,8 @@ class Deployment(Message):
     region: Region
     sensors: list[Sensor]
     calibration: Calibration | None = None
+    regions: list[RegionArea] | None = Field(
+        None, description="named regions, each served by a base station of its own; absent = one region")
 
     @property
     def metres_per_unit(self) -> float:
@@ -209,6 +247,9 @@ class Deployment(Message):
             if sensor.id in seen:
                 raise ValueError(f"duplicate sensor id {sensor.id!r}")
             seen.add(sensor.id)
+        names = [r.name for r in self.regions or ()]
+        if len(set(names)) != len(names):
+            raise ValueError(f"duplicate region name in {names}")
         return self
 
     def by_id(self) -> dict[str, DiskSensor | SectorSensor | MotionSensor | LineSensor]:
@@ -289,6 +330,9 @@ class Track(_Model):
     y: float = Field(description="position, deployment units")
     vx: float | None = Field(None, description="velocity, units/s")
     vy: float | None = Field(None, description="velocity, units/s")
+    region: str | None = Field(None, description="merged picture: the region whose base station tracks it")
+    stale: bool = Field(False, description="merged picture: its region's base station is gone; the last "
+                        "position it gave, not updated")
 
 
 class TrackSet(Message):

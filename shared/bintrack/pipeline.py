@@ -63,6 +63,37 @@ def run_tracker(dataset: Dataset, tracker: Tracker, on_event: Callable[[int], No
     yield from driver.finish()
 
 
+def run_regions(dataset: Dataset, trackers: dict[str, Tracker], taken: dict[str, set[str]], merge) -> Iterator[Message]:
+    """The regions' base stations and the merge, offline: each transition goes to the tracker of
+    every region that takes its sensor (``taken``: region → sensor ids); after each event time
+    every region's tracker is advanced to it, its ``TrackSet``s given to ``merge`` (a
+    :class:`~bintrack.trackers.multi.region_merge.RegionMerge`) with its progress, and the
+    merged ``TrackSet``s are yielded — what the live base stations with ``--region`` and the
+    merge service publish on ``tracks``."""
+    detector = TransitionDetector(dataset.deployment)
+    drivers = {region: TrackerDriver(tracker) for region, tracker in trackers.items()}
+    for region in drivers:
+        merge.back(region)
+
+    def advance(outputs_of: Callable[[TrackerDriver], list[Message]], done: float) -> Iterator[Message]:
+        for region, driver in drivers.items():
+            for out in outputs_of(driver):
+                if isinstance(out, TrackSet):
+                    merge.add(region, out)
+            yield from merge.progress(region, done)
+
+    for event in dataset.events():
+        transition = detector.update(event)
+        if transition is None:
+            continue
+        yield from advance(lambda d: d.advance(transition.t), math.nextafter(transition.t, -math.inf))
+        for region, driver in drivers.items():
+            if transition.sensor in taken[region]:
+                driver.push(transition)
+    yield from advance(TrackerDriver.finish, math.inf)
+    yield from merge.finish()
+
+
 def output_rows(outputs: Iterable[Message]) -> Iterator[TrackRow]:
     """tracks.csv rows of tracker outputs: every track of a ``TrackSet``; a single-target
     estimate (``LocalEstimate``, ``VelocityEstimate``) is track 0, a velocity-only one with

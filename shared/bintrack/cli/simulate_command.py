@@ -8,6 +8,7 @@ from pathlib import Path
 
 from bintrack.errors import CommandError
 from bintrack.formats import write_dataset
+from bintrack.regions import grid_areas, grid_shape
 from bintrack.cli.progress import Progress
 from bintrack.sim.engine import simulate_scenario
 from bintrack.sim.scenarios import SCENARIOS, ScenarioError, build_scenario, option_flag, scenario_options
@@ -56,6 +57,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="random seed (default 0)")
     for name, kind, metavar, text in OPTIONS:
         parser.add_argument(option_flag(name), dest=name, type=kind, metavar=metavar, help=text)
+    parser.add_argument("--regions", type=region_grid, metavar="CxR|N",
+                        help="name regions in deployment.json: the field cut into C columns × R rows of rectangles "
+                        "(N: the most square grid of N), each served by a base station of its own")
+
+
+def region_grid(text: str) -> tuple[int, int]:
+    """``CxR`` or ``N`` → (columns, rows)."""
+    try:
+        if "x" in text:
+            columns, rows = (int(v) for v in text.split("x"))
+        else:
+            columns, rows = grid_shape(int(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected CxR or N (a positive count), got {text!r}") from None
+    if columns < 1 or rows < 1:
+        raise argparse.ArgumentTypeError(f"expected at least 1x1 regions, got {text!r}")
+    return columns, rows
 
 
 def run(args: argparse.Namespace) -> int:
@@ -74,8 +92,11 @@ def run(args: argparse.Namespace) -> int:
     progress = Progress("simulate: sensors", total, enabled=None if total >= PROGRESS_MIN_SENSORS else False)
     result = simulate_scenario(scenario, args.seed, lambda done, _: progress.update(done, force=done == total))
     progress.close()
+    deployment = result.deployment
+    if args.regions is not None:
+        deployment = deployment.model_copy(update={"regions": grid_areas(deployment.region, *args.regions)})
     try:
-        write_dataset(out, result.deployment, result.events, result.truth)
+        write_dataset(out, deployment, result.events, result.truth)
     except OSError as exc:
         raise CommandError(f"cannot write {out}: {exc.strerror or exc}") from None
     span = scenario.window[1] - scenario.window[0]

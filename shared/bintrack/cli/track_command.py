@@ -9,7 +9,9 @@ import sys
 from bintrack.argtypes import positive_float
 from bintrack.errors import CommandError
 from bintrack.formats import open_dataset, write_objects, write_tracks
-from bintrack.pipeline import output_objects, output_rows, run_tracker
+from bintrack.pipeline import output_objects, output_rows, run_regions, run_tracker
+from bintrack.regions import RegionMap
+from bintrack.trackers.multi.region_merge import RegionMerge
 from bintrack.cli.progress import Progress
 from bintrack.trackers import OBJECT_TRACKERS, TRACKER_NAMES, make_tracker
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_options
@@ -25,6 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_tracker_arguments(parser)
     parser.add_argument("--beams", metavar="FILE.csv",
                         help="adaptive-basis: also write the estimated beams a·x + b·y = 1 (sensor,a,b; units⁻¹)")
+    parser.add_argument("--regions", action="store_true",
+                        help="mcmcda: run a tracker per region of deployment.json (its sensors and a border band two "
+                        "sensing ranges wide) and merge them, as the region base stations and the merge service do")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                         help="show progress on stderr (default: when stderr is a terminal)")
 
@@ -33,6 +38,8 @@ def run(args: argparse.Namespace) -> int:
     if beams is not None and args.tracker not in OBJECT_TRACKERS:
         raise CommandError(f"--beams: tracker {args.tracker} does not estimate beams (adaptive-basis does)")
     dataset = open_dataset(args.dataset)
+    if getattr(args, "regions", False):
+        return run_regions_command(args, dataset)
     try:
         tracker = make_tracker(args.tracker, dataset.deployment, tracker_options(args))
     except ValueError as exc:
@@ -53,6 +60,31 @@ def run(args: argparse.Namespace) -> int:
         rows = tracker.beams()
         write_beams(beams, rows)
         print(f"{len(rows)} beams written to {beams}", file=sys.stderr)
+    return 0
+
+
+def region_trackers(deployment, options, band: float | None = None) -> tuple[dict, dict[str, set[str]], RegionMap]:
+    """Per region of ``deployment``: its mcmcda tracker and the sensors it takes."""
+    regions = RegionMap(deployment)
+    trackers, taken = {}, {}
+    for name in regions.names:
+        part = regions.sub_deployment(name, band)
+        trackers[name] = make_tracker("mcmcda", part, options)
+        taken[name] = {s.id for s in part.sensors}
+    return trackers, taken, regions
+
+
+def run_regions_command(args: argparse.Namespace, dataset) -> int:
+    if args.tracker != "mcmcda":
+        raise CommandError(f"--regions runs mcmcda per region; --tracker {args.tracker} cannot")
+    try:
+        trackers, taken, regions = region_trackers(dataset.deployment, tracker_options(args))
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
+    out = args.out or "tracks.csv"
+    outputs = run_regions(dataset, trackers, taken, RegionMerge(regions))
+    count = write_tracks(sys.stdout if out == "-" else out, output_rows(outputs))
+    print(f"{count} estimates by mcmcda in {len(regions.names)} regions written to {out}", file=sys.stderr)
     return 0
 
 

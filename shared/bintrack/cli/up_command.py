@@ -34,10 +34,11 @@ import zenoh
 from bintrack.argtypes import positive_float
 from bintrack.live.bus import DEFAULT_ENDPOINT, PARENT_ENV, STATE_DIR_OPTION, router_config
 from bintrack.errors import CommandError
-from bintrack.formats import open_dataset
+from bintrack.formats import DEPLOYMENT_FILE, open_dataset, write_deployment
 from bintrack.keys import Keys, parse_key
 from bintrack.messages import Clock, MessageError, decode
-from bintrack.live.stack import ServiceCommand, stack_commands
+from bintrack.live.stack import ServiceCommand, region_stack_commands, stack_commands
+from bintrack.regions import grid_areas, grid_shape
 from bintrack.live.secure_profile import secure_up
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_arguments, tracker_options
 from bintrack.trackers import TRACKER_NAMES, check_options as make_tracker_check
@@ -73,6 +74,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="mutual TLS and per-role access control (deploy/secure/); --listen must be a tls/ endpoint")
     parser.add_argument("--certs", default="certs", metavar="DIR",
                         help="with --secure: the certificates of `bintrack certs --out DIR` (default: %(default)s)")
+    parser.add_argument("--regions", type=int, metavar="N",
+                        help="mcmcda in N regions: a router per region on 127.0.0.2… (meshed with the one on "
+                        "--listen), a sensor agent and a base station per region, and the merge; the dataset's own "
+                        "regions if it names N, else its field cut into a grid of N")
     parser.add_argument("--progress-interval", type=positive_float, default=1.0, metavar="S",
                         help="seconds between progress lines (default: %(default)s)")
 
@@ -145,7 +150,7 @@ class Supervised:
 
     @property
     def name(self) -> str:
-        return self.command.name
+        return self.command.key
 
     def start(self, env: dict[str, str], group: int | None) -> int:
         """Start (or restart) the process in process group ``group`` (a new one if None); its pid."""
@@ -228,6 +233,31 @@ def _foreign_now(router: zenoh.Session, keys: Keys, ours: set[str]) -> list[str]
     return sorted(found)
 
 
+def _region_source(args: argparse.Namespace) -> tuple[tempfile.TemporaryDirectory | None, str, list[str]]:
+    """For ``--regions N``: (a folder to remove afterwards or None, the dataset to replay, the
+    region names). A dataset without regions is replayed from a folder beside it whose
+    deployment.json names a grid of N (events and truth linked, not copied)."""
+    if args.tracker != "mcmcda":
+        raise CommandError(f"--regions runs mcmcda at the region base stations; --tracker {args.tracker} cannot")
+    if args.regions < 1:
+        raise CommandError(f"--regions must be at least 1, got {args.regions}")
+    if args.source is None or Path(args.source).suffix == ".mcap":
+        raise CommandError("--regions needs a dataset folder to replay")
+    dataset = open_dataset(args.source)
+    deployment = dataset.deployment
+    if deployment.regions:
+        if len(deployment.regions) != args.regions:
+            raise CommandError(f"--regions {args.regions}: {args.source} names {len(deployment.regions)} regions")
+        return None, args.source, [r.name for r in deployment.regions]
+    folder = tempfile.TemporaryDirectory(prefix="bintrack-regions-")
+    deployment = deployment.model_copy(update={"regions": grid_areas(deployment.region, *grid_shape(args.regions))})
+    write_deployment(Path(folder.name) / DEPLOYMENT_FILE, deployment)
+    for item in Path(args.source).iterdir():
+        if item.name != DEPLOYMENT_FILE:
+            (Path(folder.name) / item.name).symlink_to(item.resolve())
+    return folder, folder.name, [r.name for r in deployment.regions]
+
+
 def run(args: argparse.Namespace) -> int:
     if args.exit_at_end and args.source is None:
         raise CommandError("--exit-at-end needs a DIR to replay")
@@ -241,11 +271,24 @@ def run(args: argparse.Namespace) -> int:
         make_tracker_check(args.tracker, options)
     except ValueError as exc:
         raise CommandError(str(exc)) from None
-    commands = stack_commands(tracker=args.tracker, endpoint=args.listen, net=net, source=args.source,
-                              speed=args.speed, loop=args.loop, record=args.record, estimates=options.estimates,
-                              tracker_args=tracker_arguments(options),
-                              view_port=args.view_port if getattr(args, "view", False) else None,
-                              view_bind=getattr(args, "view_bind", "127.0.0.1"))
+    view_port = args.view_port if getattr(args, "view", False) else None
+    view_bind = getattr(args, "view_bind", "127.0.0.1")
+    regions_dir = None
+    if getattr(args, "regions", None) is not None:
+        if args.secure:
+            raise CommandError("--regions with --secure is not supported yet")
+        regions_dir, source, names = _region_source(args)
+        try:
+            commands = region_stack_commands(regions=names, endpoint=args.listen, net=net, source=source,
+                                             speed=args.speed, loop=args.loop, record=args.record,
+                                             tracker_args=tracker_arguments(options), view_port=view_port,
+                                             view_bind=view_bind)
+        except ValueError as exc:
+            raise CommandError(f"--regions: {exc}") from None
+    else:
+        commands = stack_commands(tracker=args.tracker, endpoint=args.listen, net=net, source=args.source,
+                                  speed=args.speed, loop=args.loop, record=args.record, estimates=options.estimates,
+                                  tracker_args=tracker_arguments(options), view_port=view_port, view_bind=view_bind)
     if args.secure:
         commands, config = secure_up(commands, args.certs, args.listen)
     else:
@@ -258,8 +301,9 @@ def run(args: argparse.Namespace) -> int:
     keys = Keys(net)
     state_dir = tempfile.TemporaryDirectory(prefix="bintrack-up-")  # the services' checkpoints
     stack_id = f"up{os.getpid()}"
-    supervised = {c.name: Supervised(c, [*c.argv(sys.executable), "--id", f"{stack_id}-{c.name}",
-                                         STATE_DIR_OPTION, state_dir.name])
+    supervised = {c.key: Supervised(c, c.argv(sys.executable) if c.name == "router" else
+                                    [*c.argv(sys.executable), "--id", f"{stack_id}-{c.key}", STATE_DIR_OPTION,
+                                     state_dir.name])
                   for c in commands}
     monitor = Monitor(keys, ours={f"{stack_id}-{name}" for name in supervised})
     foreign = _foreign_now(router, keys, monitor.ours)
@@ -275,7 +319,7 @@ def run(args: argparse.Namespace) -> int:
     stopped_by: Stopped | None = None
     failed: str | None = None
     ended_said = False
-    last_stage = "recorder" if args.record else "basestation"
+    last_stage = "recorder" if args.record else "merge" if regions_dir is not None else "basestation"
     handlers = {sig: signal.signal(sig, _raise_stopped) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
         for service in supervised.values():
@@ -343,6 +387,8 @@ def run(args: argparse.Namespace) -> int:
             entity.undeclare()
         router.close()
         state_dir.cleanup()
+        if regions_dir is not None:
+            regions_dir.cleanup()
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
     if failed:

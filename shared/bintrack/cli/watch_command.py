@@ -24,6 +24,8 @@ WHAT = ("tracks", "estimates", "transitions")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--what", choices=WHAT, default="tracks",
                         help="which messages to print (default: %(default)s)")
+    parser.add_argument("--region", metavar="NAME",
+                        help="with --what tracks: one region's base station's tracks (region/NAME/tracks)")
     add_bus_arguments(parser, net_default=None)
     parser.epilog = "Without --net, the one network alive on the bus (the alive ones are listed if several)."
 
@@ -35,7 +37,8 @@ def _num(value: float | None, digits: int = 2) -> str:
 def format_trackset(message: TrackSet) -> str:
     """``t=12.500 tracker=mcmcda tracks=2 | #0 (1.00, 2.00) v=(0.50, -0.10) | #3 (…) v=(-, -)``."""
     parts = [f"t={message.t:.3f} tracker={message.tracker} tracks={len(message.tracks)}"]
-    parts += [f"#{k.track} ({_num(k.x)}, {_num(k.y)}) v=({_num(k.vx)}, {_num(k.vy)})" for k in message.tracks]
+    parts += [f"#{k.track} ({_num(k.x)}, {_num(k.y)}) v=({_num(k.vx)}, {_num(k.vy)})"
+              + (f" {k.region}" if k.region else "") + (" stale" if k.stale else "") for k in message.tracks]
     return " | ".join(parts)
 
 
@@ -53,6 +56,9 @@ def format_transition(message: Transition) -> str:
 async def watch(args: argparse.Namespace) -> int:
     """Print until SIGINT/SIGTERM; 0 on a clean stop, 1 if no router was reachable."""
     loop = asyncio.get_running_loop()
+    if getattr(args, "region", None) and args.what != "tracks":
+        print(f"bintrack watch: --region goes with --what tracks, not {args.what}", file=sys.stderr)
+        return 2
     try:
         client = await BintrackClient.from_args(args).open()
     except (ValueError, ConnectionError) as exc:
@@ -64,7 +70,7 @@ async def watch(args: argparse.Namespace) -> int:
             "estimates": (client.estimates, format_estimate),
             "transitions": (client.transitions, format_transition),
         }[args.what]
-        messages = subscription()
+        messages = subscription(region=args.region) if getattr(args, "region", None) else subscription()
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, messages.close)
         print(f"bintrack watch: {args.what} on {messages.key_expr} (Ctrl-C to stop)", file=sys.stderr, flush=True)

@@ -232,9 +232,12 @@ class BintrackClient:
 
     # -- subscriptions -------------------------------------------------------------------
 
-    def tracks(self, capacity: int | None = None) -> Subscription[TrackSet]:
-        """Every :class:`~bintrack.messages.TrackSet` the base station publishes from now on."""
-        return self.subscribe(self.keys.tracks(), TrackSet, capacity)
+    def tracks(self, capacity: int | None = None, region: str | None = None) -> Subscription[TrackSet]:
+        """Every :class:`~bintrack.messages.TrackSet` the base station (or the merge of the
+        regions) publishes from now on; with ``region``, that region's base station's own
+        (local track ids)."""
+        key = self.keys.tracks() if region is None else self.keys.region_tracks(region)
+        return self.subscribe(key, TrackSet, capacity)
 
     def estimates(self, node: str = "*", capacity: int | None = None) -> Subscription[LocalEstimate]:
         """Every :class:`~bintrack.messages.LocalEstimate` of peer agent ``node`` (``*``: all)."""

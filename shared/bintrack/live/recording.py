@@ -87,11 +87,14 @@ KIND_TYPES: dict[str, type[Message]] = {
     "eos": EndOfStream,
     "progress": Clock,
     "done": EndOfStream,
+    "region_reports": PositionReports,
+    "region_tracks": TrackSet,
+    "region_progress": Clock,
 }
 
 # Key kinds replay never republishes from a recording (it makes its own end of stream); None
 # stands for a key that is not a bintrack key at all.
-CONTROL_KINDS = frozenset({"eos", "progress", "done", "alive", None})
+CONTROL_KINDS = frozenset({"eos", "progress", "done", "alive", "region_progress", None})
 
 _MAX_LOG_TIME = 2**64 - 1
 _TIME_FIELDS = ("t", "t_first", "t_last")

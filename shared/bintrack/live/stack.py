@@ -15,6 +15,11 @@ from bintrack.trackers import runs_on_peers
 class ServiceCommand:
     name: str
     args: tuple[str, ...]
+    label: str = ""  # unique in a stack where a service runs more than once (default: name)
+
+    @property
+    def key(self) -> str:
+        return self.label or self.name
 
     @property
     def module(self) -> str:
@@ -65,3 +70,47 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
 
 def _number(value: float) -> str:
     return str(int(value)) if float(value).is_integer() else str(value)
+
+
+def region_endpoints(listen: str, count: int) -> list[str]:
+    """Where the routers of ``count`` regions listen on this machine: ``listen``'s port on
+    127.0.0.2, 127.0.0.3, … (``listen`` itself is the hub router's, on 127.0.0.1)."""
+    scheme, _, address = listen.partition("/")
+    port = address.rpartition(":")[2]
+    if not port.isdigit() or count > 250:
+        raise ValueError(f"regions need a tcp/ADDRESS:PORT endpoint and at most 250 regions, got {listen}, {count}")
+    return [f"{scheme}/127.0.0.{i + 2}:{port}" for i in range(count)]
+
+
+def region_stack_commands(*, regions: list[str], endpoint: str, net: str, source: str | None = None,
+                          speed: float = 1.0, loop: bool = False, record: str | None = None,
+                          tracker_args: tuple[str, ...] = (), view_port: int | None = None,
+                          view_bind: str = "127.0.0.1") -> list[ServiceCommand]:
+    """The stack of a deployment cut into ``regions`` (mcmcda at the base stations): per region
+    a router (meshed with the hub router at ``endpoint`` and the regions' routers before it), a
+    sensor agent and a base station on that router; then on the hub the merge, the recorder if
+    ``record``, the view if ``view_port`` and the replay of ``source``, which waits for all."""
+    routers = region_endpoints(endpoint, len(regions))
+    services = []
+    for i, region in enumerate(regions):
+        mesh = [a for peer in (endpoint, *routers[:i]) for a in ("-e", peer)]
+        services.append(ServiceCommand("router", ("-l", routers[i], *mesh, "--name", region), f"router-{region}"))
+    for i, region in enumerate(regions):
+        bus = ("-e", routers[i], "--net", net)
+        services.append(ServiceCommand("sensor_agent", ("--region", region, *bus), f"sensor_agent-{region}"))
+        services.append(ServiceCommand("basestation", ("--tracker", "mcmcda", "--region", region, *tracker_args,
+                                                       *bus), f"basestation-{region}"))
+    bus = ("-e", endpoint, "--net", net)
+    services.append(ServiceCommand("merge", bus))
+    if record is not None:
+        until = ("--until", "stopped") if loop and source is not None else ()
+        services.append(ServiceCommand("recorder", ("--out", record, *until, *bus)))
+    if view_port is not None:
+        services.append(ServiceCommand("view", ("--port", str(view_port), "--bind", view_bind, *bus)))
+    if source is not None:
+        n = len(regions)
+        wanted = [f"sensor_agent*{n}", f"basestation*{n}", *(c.name for c in services if c.name not in
+                                                              ("router", "sensor_agent", "basestation"))]
+        replay = [source, "--speed", _number(speed), *(["--loop"] if loop else []), "--wait-for", ",".join(wanted)]
+        services.append(ServiceCommand("replay", (*replay, *bus)))
+    return services

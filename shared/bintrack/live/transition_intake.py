@@ -28,10 +28,14 @@ CHECKPOINT_TICKS = 16  # … or clock ticks, whichever comes first
 class TransitionConsumer(Service):
     """Base of services that run a tracker on the network's transitions."""
 
-    def start_intake(self, deployment: Deployment, tracker: Tracker, upstream: tuple[str, ...] = ("sensor_agent",)) -> None:
+    def start_intake(self, deployment: Deployment, tracker: Tracker, upstream: tuple[str, ...] = ("sensor_agent",),
+                     network: Deployment | None = None) -> None:
         """Subscribe to transitions, agents' progress and the clock, and drive ``tracker``; at the
-        end of the stream, finish once every service of ``upstream`` is done."""
+        end of the stream, finish once every service of ``upstream`` is done. ``network``: the
+        whole deployment when ``deployment`` is a region's part of it (the other sensors'
+        transitions are then counted as received, not taken)."""
         self.sensors = deployment.by_id()
+        self.network_sensors = set(self.sensors) if network is None else {s.id for s in network.sensors}
         self.driver = TrackerDriver(tracker)
         self.sequence = SequenceCheck()
         self.sources = SourceCheck()
@@ -90,8 +94,11 @@ class TransitionConsumer(Service):
         if transition is None:
             return
         key = str(sample.key_expr)
-        if transition.sensor not in self.sensors or key != self.keys.transition(transition.sensor):
+        if transition.sensor not in self.network_sensors or key != self.keys.transition(transition.sensor):
             self.bad.report(key, f"transition of unknown or mismatched sensor {transition.sensor!r}")
+            return
+        if transition.sensor not in self.sensors:
+            self.sources.accept(transition)  # another region's sensor: its agent's count stays whole
             return
         self.follow_restart(transition)
         kind = self.sequence.classify(transition)
@@ -170,8 +177,10 @@ class TransitionConsumer(Service):
         return replied
 
     def take(self, transition: Transition) -> None:
-        self.sequence.accept(transition)
         self.sources.accept(transition)
+        if transition.sensor not in self.sensors:
+            return  # another region's sensor: received (its agent's count is whole), not tracked
+        self.sequence.accept(transition)
         self.newest[transition.sensor] = max(transition.t, self.newest.get(transition.sensor, -math.inf))
         if not self.driver.push(transition):
             self.bad.report(self.keys.transition(transition.sensor),

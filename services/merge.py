@@ -1,0 +1,125 @@
+"""Merge: the network's ``tracks`` from its regions' base stations (DESIGN §9).
+
+``python -m bintrack.services.merge`` hears ``region/*/tracks`` (local ids) and
+``region/*/progress`` and publishes on ``tracks`` — the key the client, ``watch``, the recorder
+and the map subscribe to — one ``TrackSet`` per scan with global identities, each target shown
+once and kept under its identity across region borders
+(:class:`~bintrack.trackers.multi.region_merge.RegionMerge`). It follows each region's base
+station by its ``region/<r>/alive`` token: when one goes it logs it at once, stops waiting for
+that region and keeps its last tracks in the output with ``stale: true``; when it is back it is
+waited for again. The ``tracks`` queryable returns the latest merged ``TrackSet``
+(``tracks?after=T``: the recent ones after T).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections import deque
+
+import zenoh
+
+from bintrack.argtypes import positive_float
+from bintrack.keys import parse_key
+from bintrack.live.bus import Service, add_bus_arguments, log, service_main
+from bintrack.messages import Clock, TrackSet, encode
+from bintrack.regions import RegionMap
+from bintrack.trackers.multi.region_merge import MergeConfig, RegionMerge
+
+TRACKS_HISTORY = 1024  # recent merged track sets kept for the ``tracks?after=T`` queryable
+
+
+class Merge(Service):
+    name = "merge"
+
+    async def setup(self) -> None:
+        deployment = await self.wait_for_deployment()
+        if deployment is None:
+            return
+        self.regions = RegionMap(deployment)
+        self.merge = RegionMerge(self.regions, MergeConfig(gate=self.args.gate, handover=self.args.handover))
+        self.latest: TrackSet | None = None
+        self.history: deque[TrackSet] = deque(maxlen=TRACKS_HISTORY)
+        self.serve(self.keys.tracks(), self.on_tracks_query)
+        self.subscribe(self.keys.region_tracks(), self.on_region_tracks)
+        self.subscribe(self.keys.region_progress(), self.on_region_progress)
+        self.subscribe(self.keys.clock(), self.on_clock)
+        self._declared.append(self.session.liveliness().declare_subscriber(
+            self.keys.region_alive(), self.inbox.callback(self.on_region_alive), history=True))
+        self.follow_end_of_stream(["basestation"], lambda t: self.emit(self.merge.finish()))
+        log.info("%s: merging regions %s", self.name, ", ".join(self.regions.names))
+
+    def region_of(self, sample: zenoh.Sample) -> str | None:
+        key = str(sample.key_expr)
+        region = parse_key(key).region
+        if region not in self.regions.shapes:
+            self.bad.report(key, f"unknown region {region!r}")
+            return None
+        return region
+
+    def on_region_tracks(self, sample: zenoh.Sample) -> None:
+        region = self.region_of(sample)
+        tracks = self.decode(TrackSet, sample) if region is not None else None
+        if tracks is not None:
+            self.emit(self.merge.add(region, tracks))
+
+    def on_region_progress(self, sample: zenoh.Sample) -> None:
+        region = self.region_of(sample)
+        tick = self.decode(Clock, sample) if region is not None else None
+        if tick is not None:
+            self.emit(self.merge.progress(region, tick.t))
+
+    def on_region_alive(self, sample: zenoh.Sample) -> None:
+        region = self.region_of(sample)
+        if region is None:
+            return
+        if sample.kind == zenoh.SampleKind.PUT:
+            if region in self.merge.stale:
+                log.warning("%s: region %s's base station is back", self.name, region)
+            self.merge.back(region)
+            return
+        shown = sum(1 for tr in (self.latest.tracks if self.latest else ()) if tr.region == region)
+        log.warning("%s: region %s's base station is gone; its %d tracks are marked stale", self.name, region, shown)
+        self.emit(self.merge.lost(region))
+
+    def on_clock(self, sample: zenoh.Sample) -> None:
+        tick = self.decode(Clock, sample)
+        if tick is not None:
+            self.report_progress(tick.t)
+
+    def emit(self, merged: list[TrackSet]) -> None:
+        for tracks in merged:
+            self.latest = tracks
+            self.history.append(tracks)
+            self.publish(self.keys.tracks(), tracks)
+
+    def on_tracks_query(self, query: zenoh.Query) -> None:
+        after = query.parameters.get("after")
+        if after is None:
+            if self.latest is not None:
+                query.reply(self.keys.tracks(), encode(self.latest))
+            return
+        try:
+            after = float(after)
+        except ValueError:
+            query.reply_err(b"after must be a number of seconds")
+            return
+        for tracks in self.history:
+            if tracks.t > after:
+                query.reply(self.keys.tracks(), encode(tracks))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m bintrack.services.merge", description=__doc__.splitlines()[0])
+    parser.add_argument("--gate", type=positive_float, default=MergeConfig.gate,
+                        help="two regions' tracks closer than this are one target, m (default: %(default)s)")
+    parser.add_argument("--handover", type=positive_float, default=MergeConfig.handover,
+                        help="a track that ended this recently can be continued by another region's, s "
+                        "(default: %(default)s)")
+    parser.add_argument("--id", help="instance id (default: host-pid)")
+    add_bus_arguments(parser)
+    return parser
+
+
+if __name__ == "__main__":
+    sys.exit(service_main(Merge, build_parser))

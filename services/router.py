@@ -1,0 +1,104 @@
+"""Zenoh router: one node of the router mesh between sites (DESIGN §9, several machines).
+
+``python -m bintrack.services.router -l tcp/ADDR:PORT [-e PEER …]`` runs a zenoh-python session
+in router mode (the ``zenohd`` binary is not on the package registries; in Docker the official
+``eclipse/zenoh`` image plays this part). It listens on ``-l``, connects to the other routers of
+the mesh with ``-e`` (Zenoh retries a router that is not up yet, and again after it went), and
+logs each router, peer or client that connects or leaves. Ends cleanly on SIGTERM or SIGINT.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import threading
+
+import zenoh
+
+from bintrack.live.bus import PARENT_ENV, configure_logging, log, zenoh_config
+
+
+def mesh_config(args: argparse.Namespace) -> zenoh.Config:
+    """The router's config: the options as every service takes them, mode router, no scouting
+    (the mesh is what ``-e`` says), and connections retried for ever."""
+    args.mode = "router"
+    config = zenoh_config(args)
+    if not (args.config or any(c.startswith("scouting/gossip") for c in args.cfg)):
+        config.insert_json5("scouting/gossip/enabled", "false")
+    if args.connect:
+        # a router of the mesh that is down (or not up yet) is retried, not given up on
+        config.insert_json5("connect/timeout_ms", json.dumps({"router": -1, "peer": -1, "client": 0}))
+        config.insert_json5("connect/exit_on_failure", json.dumps({"router": False, "peer": False, "client": True}))
+    return config
+
+
+def describe(transport) -> str:
+    return f"{str(transport.whatami).lower()} {str(transport.zid)[:8]}"
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.listen:
+        log.error("router: give at least one -l/--listen endpoint")
+        return 2
+    try:
+        config = mesh_config(args)
+    except ValueError as exc:
+        log.error("router: %s", exc)
+        return 2
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda signum, frame: stop.set())
+    try:
+        session = zenoh.open(config)
+    except zenoh.ZError as exc:
+        log.error("router: cannot start on %s: %s", ", ".join(args.listen), str(exc).split(" at ")[0])
+        return 1
+
+    def on_event(event) -> None:  # a Zenoh thread: logging only
+        if event.kind == zenoh.SampleKind.PUT:
+            log.info("router %s: %s connected", args.name, describe(event.transport))
+        else:
+            log.warning("router %s: %s left", args.name, describe(event.transport))
+
+    listener = session.info.declare_transport_events_listener(on_event, history=True)
+    log.info("router %s (%s): listening on %s%s", args.name, str(session.info.zid())[:8], ", ".join(args.listen),
+             f", meshed with {', '.join(args.connect)}" if args.connect else "")
+    parent = os.environ.get(PARENT_ENV)  # under `bintrack up`: end with it
+    try:
+        while not stop.wait(0.5):
+            if parent and os.getppid() != int(parent):
+                log.warning("router %s: its supervisor (pid %s) is gone; stopping", args.name, parent)
+                break
+    finally:
+        listener.undeclare()
+        session.close()
+        log.info("router %s: stopped", args.name)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m bintrack.services.router", description=__doc__.splitlines()[0])
+    group = parser.add_argument_group("Zenoh session")
+    group.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
+                       help="endpoint to listen on, repeatable (required)")
+    group.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT",
+                       help="another router of the mesh to connect to, repeatable")
+    group.add_argument("-c", "--config", metavar="FILE", help="Zenoh configuration file (JSON5); default: $ZENOH_CONFIG")
+    group.add_argument("--cfg", action="append", default=[], metavar="KEY:VALUE",
+                       help="set a configuration key to a JSON5 value")
+    parser.add_argument("--name", default="router", help="name in the log lines (default: %(default)s)")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    configure_logging(args.verbose)
+    return run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

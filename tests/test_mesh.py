@@ -1,0 +1,137 @@
+"""The router mesh: ``python -m bintrack.services.router`` processes in a chain on 127.0.0.1/2/3
+route a publisher's samples on the first to a subscriber on the last, and log routers
+connecting and leaving."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from bintrack.live.bus import client_config
+from conftest import REPO, free_port
+
+
+class RouterProcess:
+    """A router of the mesh in a process of its own; its log in a file."""
+
+    def __init__(self, name: str, listen: str, connect: list[str], log_dir: Path, config: str | None = None):
+        self.name, self.listen = name, listen
+        self.log_path = log_dir / f"router-{name}.log"
+        self._log = open(self.log_path, "w")
+        argv = [sys.executable, "-m", "bintrack.services.router", "-l", listen, "--name", name]
+        if config is not None:
+            argv += ["-c", config]
+        for peer in connect:
+            argv += ["-e", peer]
+        self.proc = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT, cwd=REPO)
+        self.wait_logged("listening on", "start")
+
+    @property
+    def log(self) -> str:
+        if not self._log.closed:
+            self._log.flush()
+        return self.log_path.read_text()
+
+    def wait_logged(self, text: str, what: str, timeout: float = 20.0, count: int = 1) -> float:
+        """Wait until ``text`` appears ``count`` times in the log; monotonic time it did."""
+        deadline = time.monotonic() + timeout
+        while self.log.count(text) < count:
+            assert self.proc.poll() is None or text in self.log, f"router {self.name} ended: {self.log}"
+            assert time.monotonic() < deadline, f"router {self.name}: no {what} within {timeout} s:\n{self.log}"
+            time.sleep(0.05)
+        return time.monotonic()
+
+    def stop(self, sig: int = signal.SIGTERM) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        code = self.proc.wait(timeout=20)
+        self._log.close()
+        return code
+
+
+def start_chain(tmp_path: Path, count: int = 3) -> list[RouterProcess]:
+    """``count`` routers on 127.0.0.1, .2, .3 …, each connected to the one before."""
+    routers: list[RouterProcess] = []
+    port = free_port()
+    for i in range(count):
+        endpoint = f"tcp/127.0.0.{i + 1}:{port}"
+        routers.append(RouterProcess(f"r{i + 1}", endpoint, [routers[-1].listen] if routers else [], tmp_path))
+    for i, router in enumerate(routers):  # each sees its neighbours in the chain
+        router.wait_logged(": router ", "its neighbours", count=2 if 0 < i < count - 1 else 1)
+    return routers
+
+
+@pytest.fixture
+def chain(tmp_path):
+    routers = start_chain(tmp_path)
+    yield routers
+    for router in routers:
+        if router.proc.poll() is None:
+            router.proc.kill()
+            router.proc.wait()
+
+
+def test_a_sample_crosses_a_chain_of_three_routers(chain):
+    first, _, last = chain
+    received: list[bytes] = []
+    arrived = threading.Event()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        received.append(sample.payload.to_bytes())
+        if len(received) == 20:
+            arrived.set()
+
+    subscriber_session = zenoh.open(client_config([last.listen]))
+    publisher_session = zenoh.open(client_config([first.listen]))
+    subscriber = subscriber_session.declare_subscriber("mesh/test/**", on_sample)
+    try:
+        publisher = publisher_session.declare_publisher("mesh/test/a")
+        # the subscription spreads through the mesh: publish until the first sample is through
+        deadline = time.monotonic() + 10
+        while not received and time.monotonic() < deadline:
+            publisher.put(b"probe")
+            time.sleep(0.05)
+        received.clear()
+        for i in range(20):
+            publisher.put(str(i).encode())
+        assert arrived.wait(10), received
+        assert received == [str(i).encode() for i in range(20)]  # all, in order
+    finally:
+        subscriber.undeclare()
+        subscriber_session.close()
+        publisher_session.close()
+
+
+def test_killing_the_middle_router_is_logged_by_the_others_within_two_seconds(chain):
+    first, middle, last = chain
+    middle.proc.kill()
+    killed = time.monotonic()
+    middle.proc.wait()
+    seen = [router.wait_logged(" left", "the middle router leaving", timeout=5) - killed for router in (first, last)]
+    assert max(seen) < 2.0, seen
+    assert all(f"router {middle_zid(middle)} left" in r.log for r in (first, last))
+
+
+def middle_zid(router: RouterProcess) -> str:
+    return router.log.split(" (", 1)[1].split(")", 1)[0]
+
+
+def test_sigterm_ends_a_router_cleanly_and_its_neighbour_logs_it(chain):
+    first, middle, _ = chain
+    assert middle.stop(signal.SIGTERM) == 0
+    assert "stopped" in middle.log
+    first.wait_logged(" left", "the middle router leaving")
+
+
+def test_a_router_without_listen_endpoint_is_refused(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "bintrack.services.router"], capture_output=True, text=True,
+                            cwd=REPO, timeout=30)
+    assert result.returncode == 2
+    assert "give at least one -l/--listen endpoint" in result.stderr

@@ -1,0 +1,188 @@
+"""Regions (DESIGN §9): deployment.json's optional regions, which sensors each region takes, the
+region keys, and the merge of the regions' tracks into the network's picture (pure parts)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from bintrack.formats import FormatError, parse_deployment
+from bintrack.keys import Keys, parse_key
+from bintrack.messages import Region, Track, TrackSet, decode, encode
+from bintrack.regions import WHOLE, RegionMap, grid_areas, grid_shape
+from bintrack.trackers.multi.region_merge import MergeConfig, RegionMerge
+
+
+def deployment_json(regions=None, spacing: float = 5.0, side: int = 12) -> dict:
+    sensors = [{"id": f"n{i}_{j}", "kind": "disk", "x": i * spacing, "y": j * spacing, "range": 8.0}
+               for i in range(side) for j in range(side)]
+    data = {"format": "bintrack.deployment/1", "name": "field", "units": "m",
+            "region": {"xmin": 0, "ymin": 0, "xmax": (side - 1) * spacing, "ymax": (side - 1) * spacing},
+            "sensors": sensors}
+    if regions is not None:
+        data["regions"] = regions
+    return data
+
+
+def deployment(regions=None):
+    return parse_deployment(json.dumps(deployment_json(regions)))
+
+
+HALVES = [{"name": "west", "xmin": 0, "ymin": 0, "xmax": 27.5, "ymax": 55},
+          {"name": "east", "polygon": [[27.5, 0], [55, 0], [55, 55], [27.5, 55]]}]
+
+
+def test_without_regions_the_field_is_one_region():
+    regions = RegionMap(deployment())
+    assert regions.names == [WHOLE]
+    assert len(regions.own_sensors(WHOLE)) == 144
+
+
+def test_rectangles_and_polygons_own_every_sensor_once_and_take_a_border_band():
+    regions = RegionMap(deployment(HALVES))
+    west, east = regions.own_sensors("west"), regions.own_sensors("east")
+    assert sorted(west + east) == sorted(s.id for s in regions.deployment.sensors)  # a partition
+    assert all(regions.deployment.by_id()[s].x <= 27.5 for s in west)
+    taken = regions.taken_sensors("west")  # within two ranges (16 m) of x ≤ 27.5
+    assert set(west) < set(taken)
+    assert {regions.deployment.by_id()[s].x for s in taken} == {5.0 * i for i in range(9)}  # x ≤ 40 < 43.5
+    assert set(regions.taken_sensors("west", band=0.0)) == set(west)
+    assert regions.owner(27.5, 10) == "west" and regions.owner(27.6, 10) == "east"
+    assert regions.owner(-3, -3) == "west"  # outside every region: the nearest
+    assert regions.neighbours("west") == ["east"]
+    part = regions.sub_deployment("east")
+    assert {s.id for s in part.sensors} == set(regions.taken_sensors("east")) and part.region == regions.deployment.region
+
+
+@pytest.mark.parametrize("regions, field, message", [
+    ([{"name": "a", "xmin": 0, "ymin": 0, "xmax": 10}], "regions[0]", "needs xmin, ymin, xmax, ymax or a polygon"),
+    ([{"name": "a", "polygon": [[0, 0], [1, 1]]}], "regions[0]", "a polygon needs at least 3 vertices"),
+    ([{"name": "a/b", "xmin": 0, "ymin": 0, "xmax": 1, "ymax": 1}], "regions[0].name", "String should match"),
+    ([{"name": "a", "xmin": 0, "ymin": 0, "xmax": 1, "ymax": 1}] * 2, "(top level)", "duplicate region name"),
+])
+def test_bad_regions_get_a_one_line_error_naming_the_field(regions, field, message):
+    with pytest.raises(FormatError) as caught:
+        deployment(regions)
+    text = str(caught.value)
+    assert field in text and message in text and "\n" not in text
+
+
+def test_a_polygon_that_crosses_itself_is_refused():
+    bow_tie = [{"name": "bow", "polygon": [[0, 0], [10, 10], [10, 0], [0, 10]]}]
+    with pytest.raises(ValueError, match="crosses itself"):
+        RegionMap(deployment(bow_tie))
+
+
+def test_grid_areas_cut_the_field():
+    areas = grid_areas(Region(xmin=0, ymin=0, xmax=40, ymax=20), 2, 2)
+    assert [a.name for a in areas] == ["r0c0", "r0c1", "r1c0", "r1c1"]
+    assert (areas[3].xmin, areas[3].ymin, areas[3].xmax, areas[3].ymax) == (20, 10, 40, 20)
+    assert grid_shape(16) == (4, 4) and grid_shape(4) == (2, 2) and grid_shape(6) == (3, 2) and grid_shape(1) == (1, 1)
+
+
+def test_region_keys_round_trip():
+    keys = Keys("field")
+    assert keys.region_tracks("r0c1") == "bintrack/field/region/r0c1/tracks"
+    for build, kind in ((keys.region_tracks, "region_tracks"), (keys.region_reports, "region_reports"),
+                        (keys.region_progress, "region_progress"), (keys.region_alive, "region_alive")):
+        parsed = parse_key(build("r0c1"))
+        assert (parsed.kind, parsed.region, parsed.net) == (kind, "r0c1", "field")
+    with pytest.raises(ValueError):
+        keys.region_tracks("a/b")
+
+
+def test_a_track_set_of_before_regions_still_decodes_and_the_new_fields_default():
+    old = {"version": 1, "t": 1.0, "tracker": "mcmcda", "tracks": [{"track": 3, "x": 1.0, "y": 2.0}]}
+    import msgpack
+
+    tracks = decode(TrackSet, msgpack.packb(old))
+    assert tracks.tracks[0].stale is False and tracks.tracks[0].region is None
+    stale = Track(track=1, x=0, y=0, region="west", stale=True)
+    assert decode(TrackSet, encode(TrackSet(t=0, tracker="m", tracks=[stale]))).tracks[0] == stale
+
+
+# --------------------------------------------------------------------------- the merge
+
+
+def scan(t: float, *tracks: tuple[int, float, float]) -> TrackSet:
+    return TrackSet(t=t, tracker="mcmcda", tracks=[Track(track=k, x=x, y=y, vx=1.0, vy=0.0) for k, x, y in tracks])
+
+
+def crossing(merge: RegionMerge, t_end: float = 20.0, west_until: float = 40.0, east_from: float = 15.0):
+    """A target walking east along y = 20 at 1 m/s from x = 10 (t = 0): west tracks it (local id
+    1) while x < ``west_until``, east (local id 7) once x > ``east_from``; scans every 0.5 s."""
+    out = []
+    t = 0.0
+    while t <= t_end:
+        x = 10 + t
+        west = [(1, x + 0.1, 20.0)] if x < west_until else []
+        east = [(7, x - 0.1, 20.0)] if x > east_from else []
+        merge.add("west", scan(t, *west))
+        merge.add("east", scan(t, *east))
+        out += merge.progress("west", t) + merge.progress("east", t)
+        t += 0.5
+    return out
+
+
+def test_a_target_crossing_the_border_is_shown_once_under_one_identity():
+    merge = RegionMerge(RegionMap(deployment(HALVES)))
+    merge.back("west"), merge.back("east")
+    merged = crossing(merge, t_end=30.0)
+    assert [m.t for m in merged] == [0.5 * k for k in range(61)]
+    assert all(len(m.tracks) == 1 for m in merged)  # the band's duplicate is never shown twice
+    assert {m.tracks[0].track for m in merged} == {0}
+    regions = [m.tracks[0].region for m in merged]
+    assert regions[0] == "west" and regions[-1] == "east"
+    assert regions.index("east") == 36  # x = 28 ≈ the border at 27.5
+
+
+def test_a_hand_over_without_overlap_matches_the_ended_track_by_position_and_time():
+    merge = RegionMerge(RegionMap(deployment(HALVES)), MergeConfig(gate=5.0, handover=5.0))
+    merge.back("west"), merge.back("east")
+    merged = crossing(merge, t_end=30.0, west_until=27.5, east_from=29.0)  # 1 s with nobody tracking it
+    ids = {tr.track for m in merged for tr in m.tracks}
+    assert ids == {0}
+    assert sum(not m.tracks for m in merged) == 4  # t = 17.5 … 19 s
+
+
+def test_two_targets_far_apart_keep_two_identities():
+    merge = RegionMerge(RegionMap(deployment(HALVES)))
+    merge.back("west"), merge.back("east")
+    merge.add("west", scan(0.0, (1, 5.0, 5.0)))
+    merge.add("east", scan(0.0, (1, 50.0, 50.0)))
+    merge.progress("west", 0.0)
+    (merged,) = merge.progress("east", 0.0)
+    assert sorted((t.track, t.region) for t in merged.tracks) == [(0, "east"), (1, "west")] or \
+        sorted((t.track, t.region) for t in merged.tracks) == [(0, "west"), (1, "east")]
+
+
+def test_the_merge_waits_for_every_live_region_and_a_lost_one_turns_stale():
+    merge = RegionMerge(RegionMap(deployment(HALVES)))
+    merge.back("west"), merge.back("east")
+    merge.add("west", scan(0.0, (1, 5.0, 5.0)))
+    assert merge.progress("west", 0.0) == []  # east has not said it is done with t = 0
+    merge.add("east", scan(0.0, (4, 50.0, 50.0)))
+    (first,) = merge.progress("east", 0.0)
+    east_id = next(t.track for t in first.tracks if t.region == "east")
+    merge.add("west", scan(0.5, (1, 5.5, 5.0)))
+    assert merge.progress("west", 0.5) == []
+    (second,) = merge.lost("east")  # no longer waited for
+    stale = [t for t in second.tracks if t.stale]
+    assert [(t.track, t.region, t.x, t.y) for t in stale] == [(east_id, "east", 50.0, 50.0)]
+    assert [t.stale for t in second.tracks if t.region == "west"] == [False]
+    merge.back("east")
+    merge.add("east", scan(1.0, (4, 50.5, 50.0)))
+    merge.add("west", scan(1.0, (1, 6.0, 5.0)))
+    assert merge.progress("west", 1.0) == []
+    (third,) = merge.progress("east", 1.0)
+    assert not any(t.stale for t in third.tracks) and {t.track for t in third.tracks} == {east_id, 1 - east_id}
+
+
+def test_watch_shows_the_region_and_staleness_of_merged_tracks():
+    from bintrack.cli.watch_command import format_trackset
+
+    merged = TrackSet(t=1.0, tracker="mcmcda", tracks=[Track(track=0, x=1, y=2, region="r0c0"),
+                                                        Track(track=1, x=3, y=4, region="r1c1", stale=True)])
+    assert format_trackset(merged) == ("t=1.000 tracker=mcmcda tracks=2 | #0 (1.00, 2.00) v=(-, -) r0c0 | "
+                                       "#1 (3.00, 4.00) v=(-, -) r1c1 stale")
