@@ -59,7 +59,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import cached_property
 from typing import Protocol
 
 import numpy as np
@@ -119,7 +118,7 @@ def weighted_report(cells: np.ndarray, w: np.ndarray, cell: float, weight: float
 class FitGrid(Protocol):
     """What the fit reads of the grid (:class:`bintrack.trackers.multi.fusion.GridFusion`):
     cells of side ``cell`` (units) at ``cells`` (n × 2), the sparse cells × sensors ``cover``, each
-    cell's sensing range ``cell_range``, the per-sensor log likelihood ratios of eq. (4)."""
+    cell's sensing range ``cell_range`` and the longest ``max_range``, the per-sensor log likelihood ratios of eq. (4)."""
 
     config: FusionConfig
     ids: list[str]
@@ -127,6 +126,7 @@ class FitGrid(Protocol):
     cells: np.ndarray
     cell_tree: cKDTree
     cell_range: np.ndarray
+    max_range: float
     cover: csr_matrix
     log_hit_ratio: np.ndarray
     log_miss_ratio: np.ndarray
@@ -143,6 +143,8 @@ class TargetFit:
         self.config = grid.config
         cover = grid.cover
         self._sensors_of = [cover.indices[cover.indptr[c]:cover.indptr[c + 1]] for c in range(cover.shape[0])]
+        self.reach = 2.0 * grid.max_range * (1 + 1e-9)
+        """units: two cells share a sensor only within two sensing ranges of each other"""
 
     def reports(self, detecting: np.ndarray, expected: list[Expectation] | tuple = ()) -> list[PositionReport]:
         """The position reports of one scan: ``detecting`` is every sensor's status in
@@ -171,7 +173,16 @@ class TargetFit:
 
 
 class _Scan:
-    """The targets placed so far in one scan, and the gains of the cells given them."""
+    """The targets placed so far in one scan, how many of them cover each sensor, and the gain
+    of every cell given all of them.
+
+    A target's gain at a cell depends only on the sensors within range of that cell. So moving
+    one target changes the gains only of the cells within two sensing ranges of its old and new
+    cells, and the gains given every target but one differ from those given all only there.
+    Those rows are recomputed; the rest of the grid is read, not recomputed, so a step's cost no
+    longer grows with targets × cells. Every gain is the same sum over the same sensors as a
+    whole-grid evaluation would give, bit for bit.
+    """
 
     def __init__(self, fit: TargetFit, detecting: np.ndarray):
         self.fit = fit
@@ -180,33 +191,68 @@ class _Scan:
         self.hits = detecting > 0
         self.weight = np.where(self.hits, self.grid.log_hit_ratio, self.grid.log_miss_ratio)
         self.targets: list[_Target] = []
+        self.count = np.zeros(len(self.weight), dtype=np.int32)
+        """per sensor: the targets whose cell it covers"""
+        self.base = self.grid.cover @ self.weight
+        """per cell: the gain (nats) of a target there given all the targets placed"""
+        self.gains_alone = self.base.copy()
+        """per cell: the gain (nats) of a target there with no other target, the same for every
+        track's expected target in the scan"""
 
-    def _covered(self, cells) -> np.ndarray:
-        mask = np.zeros(len(self.weight), dtype=bool)
-        for c in cells:
-            mask[self.fit._sensors_of[c]] = True
-        return mask
+    def _reach(self, centres) -> np.ndarray:
+        """The cells whose gain a target at any of the cells ``centres`` can change."""
+        near = self.grid.cell_tree.query_ball_point(self.grid.cells[list(centres)], r=self.fit.reach)
+        return np.unique(np.concatenate([np.asarray(n, dtype=int) for n in near]))
 
-    @cached_property
-    def gains_alone(self) -> np.ndarray:
-        """Per cell: the gain (nats) of a target there with no other target, the same for every
-        track's expected target in the scan."""
-        return self.gains([])
+    def _refresh(self, centres) -> None:
+        rows = self._reach(centres)
+        self.base[rows] = self.grid.cover[rows] @ self._free_weight()
 
-    def gains(self, others: list[int]) -> np.ndarray:
-        """Per cell: the gain (nats) of a target there given targets at ``others``."""
-        return self.grid.cover @ (self.weight * ~self._covered(others))
+    def _append(self, target: _Target) -> None:
+        self.targets.append(target)
+        self.count[self.fit._sensors_of[target.cell]] += 1
+        self._refresh([target.cell])
 
-    def new_hits(self, others: list[int]) -> np.ndarray:
-        """Per cell: the detections a target there would explain that ``others`` do not."""
-        return self.grid.cover @ (self.hits & ~self._covered(others)).astype(float)
+    def _remove(self, k: int) -> None:
+        self.count[self.fit._sensors_of[self.targets[k].cell]] -= 1
+        self._refresh([self.targets[k].cell])
+        del self.targets[k]
 
-    def _others(self, k: int) -> list[int]:
-        return [t.cell for i, t in enumerate(self.targets) if i != k]
+    def _move(self, target: _Target, cell: int) -> None:
+        old = target.cell
+        self.count[self.fit._sensors_of[old]] -= 1
+        target.cell = cell
+        self.count[self.fit._sensors_of[cell]] += 1
+        self._refresh([old, cell])
+
+    def _free_weight(self, k: int | None = None, extra=()) -> np.ndarray:
+        """Per sensor: its weight (nats) where no target but target ``k`` (and none at the cells
+        ``extra``) covers it, else 0."""
+        count = self.count
+        if k is not None:
+            count = count.copy()
+            count[self.fit._sensors_of[self.targets[k].cell]] -= 1
+        free = count == 0
+        for c in extra:
+            free[self.fit._sensors_of[c]] = False
+        return self.weight * free
+
+    def _gains_on(self, rows: np.ndarray, k: int | None = None, extra=()) -> np.ndarray:
+        """Gains (nats) of a target at the cells ``rows`` given every target but ``k`` (and
+        targets at ``extra``)."""
+        return self.grid.cover[rows] @ self._free_weight(k, extra)
+
+    def _gains_all(self, k: int, extra=()) -> np.ndarray:
+        """Per cell: the gain (nats) of a target there given every target but ``k`` and targets
+        at ``extra``: ``base``, recomputed where target ``k`` or ``extra`` reach."""
+        gain = self.base.copy()
+        rows = self._reach([self.targets[k].cell, *extra])
+        gain[rows] = self.grid.cover[rows] @ self._free_weight(k, extra)
+        return gain
 
     def _support(self, target: _Target, gain: np.ndarray) -> float:
-        """log Σ π e^gain over an expected target's gate: its evidence, nats."""
-        return float(logsumexp(target.log_prior + gain[target.gate]))
+        """log Σ π e^gain over an expected target's gate (``gain`` per gate cell): its evidence, nats."""
+        return float(logsumexp(target.log_prior + gain))
 
     def place_expected(self, e: int, expectation: Expectation) -> None:
         radius = self.config.expected_sigmas * expectation.sigma
@@ -218,18 +264,17 @@ class _Scan:
         # mass beyond the sensors' reach (a target leaving) supports nothing
         log_prior = -0.5 * d2 / expectation.sigma ** 2 - math.log(2 * math.pi * expectation.sigma ** 2 / self.grid.cell ** 2)
         target = _Target(cell=-1, expectation=e, gate=gate, log_prior=log_prior)
-        if self._support(target, self.gains_alone) >= self.config.expected_gain:
-            gain = self.gains([t.cell for t in self.targets])
-            target.cell = int(gate[np.argmax(gain[gate])])
-            self.targets.append(target)
+        if self._support(target, self.gains_alone[gate]) >= self.config.expected_gain:
+            target.cell = int(gate[np.argmax(self._gains_on(gate))])
+            self._append(target)
 
     def place_new(self) -> bool:
-        others = [t.cell for t in self.targets]
-        gain = np.where(self.new_hits(others) >= self.config.threshold, self.gains(others), -np.inf)
+        new_hits = self.grid.cover @ (self.hits & (self.count == 0)).astype(float)
+        gain = np.where(new_hits >= self.config.threshold, self.base, -np.inf)
         best = int(np.argmax(gain))
         if not gain[best] >= self.config.min_gain:
             return False
-        self.targets.append(_Target(cell=best))
+        self._append(_Target(cell=best))
         return True
 
     def settle(self) -> None:
@@ -237,26 +282,31 @@ class _Scan:
         for _ in range(_MAX_SWEEPS):
             moved = False
             for k, target in enumerate(self.targets):
-                gain = self.gains(self._others(k))
-                cells = target.gate if target.gate is not None else slice(None)
-                best = int(np.argmax(gain[cells]))
-                best = int(target.gate[best]) if target.gate is not None else best
-                if gain[best] > gain[target.cell] + 1e-9:
-                    target.cell = best
+                if target.gate is not None:
+                    cells = target.gate
+                    gain = self._gains_on(cells, k)
+                    i = int(np.argmax(gain))
+                    best, better = int(cells[i]), gain[i] > gain[np.flatnonzero(cells == target.cell)[0]] + 1e-9
+                else:
+                    gain = self._gains_all(k)
+                    best = int(np.argmax(gain))
+                    better = gain[best] > gain[target.cell] + 1e-9
+                if better:
+                    self._move(target, best)
                     moved = True
             if not moved:
                 return
 
-    def _total(self, cells: list[int]) -> float:
-        return float((self.weight * self._covered(cells)).sum())
+    def _total(self, free_weight: np.ndarray) -> float:
+        """ℓ of the targets that leave the sensors of ``free_weight`` (from ``_free_weight``) free, nats."""
+        return float((self.weight - free_weight).sum())
 
     def split_one(self) -> bool:
         """Replace one new target by the two that explain the scan best, if that gains min_gain."""
         for k, target in enumerate(self.targets):
             if target.expectation is not None:
                 continue
-            others = self._others(k)
-            best_pair, best_total = None, self._total(others + [target.cell]) + self.config.min_gain
+            best_pair, best_total = None, self._total(self._free_weight()) + self.config.min_gain
             centre = self.grid.cells[target.cell]
             offset = 0.5 * float(self.grid.cell_range[target.cell])
             for angle in _SPLIT_ANGLES:
@@ -264,14 +314,13 @@ class _Scan:
                 pair = [int(self.grid.cell_tree.query(centre + u)[1]), int(self.grid.cell_tree.query(centre - u)[1])]
                 for _ in range(4):
                     for i in (0, 1):
-                        gain = self.gains(others + [pair[1 - i]])
-                        pair[i] = int(np.argmax(gain))
-                total = self._total(others + pair)
+                        pair[i] = int(np.argmax(self._gains_all(k, extra=[pair[1 - i]])))
+                total = self._total(self._free_weight(k, extra=pair))
                 if total > best_total:
                     best_pair, best_total = pair, total
             if best_pair is not None:
-                target.cell = best_pair[0]
-                self.targets.append(_Target(cell=best_pair[1]))
+                self._move(target, best_pair[0])
+                self._append(_Target(cell=best_pair[1]))
                 return True
         return False
 
@@ -280,24 +329,23 @@ class _Scan:
         while self.targets:
             margins = []
             for k, target in enumerate(self.targets):
-                gain = self.gains(self._others(k))
                 if target.expectation is not None:
-                    margins.append(self._support(target, gain) - self.config.expected_gain)
+                    margins.append(self._support(target, self._gains_on(target.gate, k)) - self.config.expected_gain)
                 else:
-                    margins.append(gain[target.cell] - self.config.min_gain)
+                    margins.append(float(self._gains_on(np.array([target.cell]), k)[0]) - self.config.min_gain)
             worst = int(np.argmin(margins))
             if margins[worst] >= 0:
                 return
-            del self.targets[worst]
+            self._remove(worst)
             self.settle()
 
     def report(self, k: int) -> PositionReport:
         target = self.targets[k]
-        gain = self.gains(self._others(k))
         near = np.asarray(self.grid.cell_tree.query_ball_point(self.grid.cells[target.cell],
-                                                               r=float(self.grid.cell_range[target.cell])))
-        return weighted_report(self.grid.cells[near], np.exp(gain[near] - gain[target.cell]), self.grid.cell,
-                               weight=max(float(gain[target.cell]), 0.0))
+                                                               r=float(self.grid.cell_range[target.cell])), dtype=int)
+        gain = self._gains_on(near, k)
+        here = float(gain[np.flatnonzero(near == target.cell)[0]])
+        return weighted_report(self.grid.cells[near], np.exp(gain - here), self.grid.cell, weight=max(here, 0.0))
 
     def shared_copies(self, reports: list[PositionReport], expected) -> list[PositionReport]:
         """Copies of reports for established tracks hidden in another track's blob (module docstring, 6)."""
