@@ -129,19 +129,21 @@ def test_two_tracks_whose_people_share_detections_each_keep_a_target():
 
 
 class _WholeGrid(target_fit._Scan):
-    """The fit with every gain recomputed over the whole grid from the targets' cells (how it
-    was computed before gains were kept per cell and updated only where a target reaches)."""
+    """The fit with every gain recomputed over the whole grid from the targets' cells by
+    scipy's ``cover @ weights`` (how it was computed before gains were kept per cell and
+    updated only where a sensor changes)."""
 
     def _whole(self, k, extra) -> np.ndarray:
-        covered = np.zeros(len(self.weight), dtype=bool)
+        covered = np.zeros(len(self.weight) - 1, dtype=bool)  # the last weight pads TargetFit.sums
         for i, target in enumerate(self.targets):
             if i != k:
                 covered[self.fit._sensors_of[target.cell]] = True
         for c in extra:
             covered[self.fit._sensors_of[c]] = True
-        return self.grid.cover @ (self.weight * ~covered)
+        return self.grid.cover @ (self.weight[:-1] * ~covered)
 
-    def _refresh(self, centres) -> None:
+    def _recount(self, remove, add) -> None:
+        super()._recount(remove, add)
         self.base = self._whole(None, ())
 
     def _gains_all(self, k, extra=()) -> np.ndarray:

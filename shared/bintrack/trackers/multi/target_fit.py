@@ -64,7 +64,6 @@ from typing import Protocol
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
-from scipy.special import logsumexp
 
 from bintrack.messages import PositionReport
 from bintrack.trackers.multi.fusion_config import FusionConfig
@@ -118,7 +117,7 @@ def weighted_report(cells: np.ndarray, w: np.ndarray, cell: float, weight: float
 class FitGrid(Protocol):
     """What the fit reads of the grid (:class:`bintrack.trackers.multi.fusion.GridFusion`):
     cells of side ``cell`` (units) at ``cells`` (n × 2), the sparse cells × sensors ``cover``, each
-    cell's sensing range ``cell_range`` and the longest ``max_range``, the per-sensor log likelihood ratios of eq. (4)."""
+    cell's sensing range ``cell_range``, the per-sensor log likelihood ratios of eq. (4)."""
 
     config: FusionConfig
     ids: list[str]
@@ -126,7 +125,6 @@ class FitGrid(Protocol):
     cells: np.ndarray
     cell_tree: cKDTree
     cell_range: np.ndarray
-    max_range: float
     cover: csr_matrix
     log_hit_ratio: np.ndarray
     log_miss_ratio: np.ndarray
@@ -143,8 +141,30 @@ class TargetFit:
         self.config = grid.config
         cover = grid.cover
         self._sensors_of = [cover.indices[cover.indptr[c]:cover.indptr[c + 1]] for c in range(cover.shape[0])]
-        self.reach = 2.0 * grid.max_range * (1 + 1e-9)
-        """units: two cells share a sensor only within two sensing ranges of each other"""
+        by_sensor = cover.tocsc()
+        self._cells_of = [by_sensor.indices[by_sensor.indptr[s]:by_sensor.indptr[s + 1]] for s in range(cover.shape[1])]
+        # column c: cell c's sensors in ``cover``'s order, padded with index n, a sensor that
+        # weighs 0 (the last entry of a scan's per-sensor weights)
+        lengths = np.diff(cover.indptr)
+        self._padded = np.full((max(int(lengths.max(initial=0)), 1), cover.shape[0]), cover.shape[1], dtype=np.intp)
+        self._padded[np.arange(cover.nnz) - np.repeat(cover.indptr[:-1], lengths),
+                     np.repeat(np.arange(cover.shape[0]), lengths)] = cover.indices
+
+    def sums(self, rows: np.ndarray, per_sensor: np.ndarray) -> np.ndarray:
+        """Per cell of ``rows``: the sum of ``per_sensor`` (n + 1 entries, the last 0) over the
+        sensors covering it, added one sensor after another in ``cover``'s order from 0, as
+        ``cover @ per_sensor[:n]`` does, so the two agree bit for bit."""
+        values = per_sensor[self._padded[:, rows]]
+        total = np.zeros(values.shape[1])
+        for layer in values:
+            total += layer
+        return total
+
+    def cells_covering(self, sensors: np.ndarray) -> np.ndarray:
+        """The cells covered by any of ``sensors``, in index order."""
+        if len(sensors) == 0:
+            return np.zeros(0, dtype=np.intp)
+        return np.unique(np.concatenate([self._cells_of[s] for s in sensors]))
 
     def reports(self, detecting: np.ndarray, expected: list[Expectation] | tuple = ()) -> list[PositionReport]:
         """The position reports of one scan: ``detecting`` is every sensor's status in
@@ -176,12 +196,13 @@ class _Scan:
     """The targets placed so far in one scan, how many of them cover each sensor, and the gain
     of every cell given all of them.
 
-    A target's gain at a cell depends only on the sensors within range of that cell. So moving
-    one target changes the gains only of the cells within two sensing ranges of its old and new
-    cells, and the gains given every target but one differ from those given all only there.
-    Those rows are recomputed; the rest of the grid is read, not recomputed, so a step's cost no
-    longer grows with targets × cells. Every gain is the same sum over the same sensors as a
-    whole-grid evaluation would give, bit for bit.
+    A target's gain at a cell depends only on the sensors covering that cell. So placing,
+    moving or removing a target changes the gains only of the cells covering a sensor it frees or
+    newly covers, and the gains given every target but one differ from those given all only at
+    the cells covering a sensor that target alone covers. Only those cells are recomputed (an
+    expected target's, only over its gate); the rest of the grid is read, so a step's cost no
+    longer grows with targets × cells. Every gain is the same sum over the same sensors, in the
+    same order, as a whole-grid ``cover @ weights`` gives, bit for bit.
     """
 
     def __init__(self, fit: TargetFit, detecting: np.ndarray):
@@ -189,70 +210,76 @@ class _Scan:
         self.grid = fit.grid
         self.config = fit.config
         self.hits = detecting > 0
-        self.weight = np.where(self.hits, self.grid.log_hit_ratio, self.grid.log_miss_ratio)
+        # per sensor, nats, and a last entry 0 for the padding of ``TargetFit.sums``
+        self.weight = np.append(np.where(self.hits, self.grid.log_hit_ratio, self.grid.log_miss_ratio), 0.0)
         self.targets: list[_Target] = []
         self.count = np.zeros(len(self.weight), dtype=np.int32)
-        """per sensor: the targets whose cell it covers"""
-        self.base = self.grid.cover @ self.weight
-        """per cell: the gain (nats) of a target there given all the targets placed"""
+        """per sensor: the targets whose cell it covers (the padding's entry stays 0)"""
+        self.base = self.grid.cover @ self.weight[:-1]
+        """per cell: the gain (nats) of a target there given all the targets placed, kept up to
+        date where a sensor becomes free or covered"""
         self.gains_alone = self.base.copy()
         """per cell: the gain (nats) of a target there with no other target, the same for every
         track's expected target in the scan"""
 
-    def _reach(self, centres) -> np.ndarray:
-        """The cells whose gain a target at any of the cells ``centres`` can change."""
-        near = self.grid.cell_tree.query_ball_point(self.grid.cells[list(centres)], r=self.fit.reach)
-        return np.unique(np.concatenate([np.asarray(n, dtype=int) for n in near]))
-
-    def _refresh(self, centres) -> None:
-        rows = self._reach(centres)
-        self.base[rows] = self.grid.cover[rows] @ self._free_weight()
+    def _recount(self, remove: int | None, add: int | None) -> None:
+        """Take a target off the cell ``remove`` and put one on ``add`` (either may be None),
+        and recompute ``base`` at the cells covering a sensor that became free or covered."""
+        sensors_of = self.fit._sensors_of
+        touched = np.concatenate([sensors_of[c] for c in (remove, add) if c is not None])
+        before = self.count[touched] == 0
+        if remove is not None:
+            self.count[sensors_of[remove]] -= 1
+        if add is not None:
+            self.count[sensors_of[add]] += 1
+        rows = self.fit.cells_covering(touched[(self.count[touched] == 0) != before])
+        self.base[rows] = self.fit.sums(rows, self._free_weight())
 
     def _append(self, target: _Target) -> None:
         self.targets.append(target)
-        self.count[self.fit._sensors_of[target.cell]] += 1
-        self._refresh([target.cell])
+        self._recount(None, target.cell)
 
     def _remove(self, k: int) -> None:
-        self.count[self.fit._sensors_of[self.targets[k].cell]] -= 1
-        self._refresh([self.targets[k].cell])
+        self._recount(self.targets[k].cell, None)
         del self.targets[k]
 
     def _move(self, target: _Target, cell: int) -> None:
-        old = target.cell
-        self.count[self.fit._sensors_of[old]] -= 1
-        target.cell = cell
-        self.count[self.fit._sensors_of[cell]] += 1
-        self._refresh([old, cell])
+        old, target.cell = target.cell, cell
+        self._recount(old, cell)
 
-    def _free_weight(self, k: int | None = None, extra=()) -> np.ndarray:
-        """Per sensor: its weight (nats) where no target but target ``k`` (and none at the cells
-        ``extra``) covers it, else 0."""
-        count = self.count
+    def _free(self, k: int | None = None, extra=()) -> np.ndarray:
+        """Per sensor: True where no target but target ``k`` (and none at the cells ``extra``) covers it."""
+        free = self.count == 0
         if k is not None:
-            count = count.copy()
-            count[self.fit._sensors_of[self.targets[k].cell]] -= 1
-        free = count == 0
+            own = self.fit._sensors_of[self.targets[k].cell]
+            free[own] = self.count[own] == 1
         for c in extra:
             free[self.fit._sensors_of[c]] = False
-        return self.weight * free
+        return free
+
+    def _free_weight(self, k: int | None = None, extra=()) -> np.ndarray:
+        """Per sensor: its weight (nats) where ``_free``, else 0."""
+        return self.weight * self._free(k, extra)
 
     def _gains_on(self, rows: np.ndarray, k: int | None = None, extra=()) -> np.ndarray:
         """Gains (nats) of a target at the cells ``rows`` given every target but ``k`` (and
         targets at ``extra``)."""
-        return self.grid.cover[rows] @ self._free_weight(k, extra)
+        return self.fit.sums(rows, self._free_weight(k, extra))
 
     def _gains_all(self, k: int, extra=()) -> np.ndarray:
         """Per cell: the gain (nats) of a target there given every target but ``k`` and targets
         at ``extra``: ``base``, recomputed where target ``k`` or ``extra`` reach."""
+        free = self._free(k, extra)
         gain = self.base.copy()
-        rows = self._reach([self.targets[k].cell, *extra])
-        gain[rows] = self.grid.cover[rows] @ self._free_weight(k, extra)
+        rows = self.fit.cells_covering(np.flatnonzero((self.count == 0) != free))
+        gain[rows] = self.fit.sums(rows, self.weight * free)
         return gain
 
     def _support(self, target: _Target, gain: np.ndarray) -> float:
         """log Σ π e^gain over an expected target's gate (``gain`` per gate cell): its evidence, nats."""
-        return float(logsumexp(target.log_prior + gain))
+        x = target.log_prior + gain
+        top = float(x.max())
+        return top + math.log(float(np.exp(x - top).sum()))
 
     def place_expected(self, e: int, expectation: Expectation) -> None:
         radius = self.config.expected_sigmas * expectation.sigma
@@ -269,7 +296,7 @@ class _Scan:
             self._append(target)
 
     def place_new(self) -> bool:
-        new_hits = self.grid.cover @ (self.hits & (self.count == 0)).astype(float)
+        new_hits = self.grid.cover @ (self.hits & (self.count[:-1] == 0)).astype(float)
         gain = np.where(new_hits >= self.config.threshold, self.base, -np.inf)
         best = int(np.argmax(gain))
         if not gain[best] >= self.config.min_gain:
@@ -299,7 +326,7 @@ class _Scan:
 
     def _total(self, free_weight: np.ndarray) -> float:
         """ℓ of the targets that leave the sensors of ``free_weight`` (from ``_free_weight``) free, nats."""
-        return float((self.weight - free_weight).sum())
+        return float((self.weight[:-1] - free_weight[:-1]).sum())
 
     def split_one(self) -> bool:
         """Replace one new target by the two that explain the scan best, if that gains min_gain."""
