@@ -138,6 +138,12 @@ VARIANTS: dict[str, dict] = {
     "min3": {"mcmcda": {"min_reports": 3}},
     "coast2": {"mcmcda": {"coast": 2}},
     "window8": {"mcmcda": {"window": 8}},
+    "q0.3": {"mcmcda": {"process_noise": 0.3}},
+    "ev1": {"mcmcda": {"extra_variance": 1.0}},
+    "ev9": {"mcmcda": {"extra_variance": 9.0}},
+    "birth3e-4": {"mcmcda": {"birth_rate": 3e-4}},
+    "expected0.5": {"fusion": {"expected_gain": 0.5}},
+    "min_gain2": {"fusion": {"min_gain": 2.0}},
 }
 
 
