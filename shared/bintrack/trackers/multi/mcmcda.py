@@ -481,13 +481,17 @@ class OnlineMCMCDA:
         return [i for i, t in enumerate(tracks) if len(t.reports) >= (2 if t.anchor is not None else 4)]
 
     def _mergeable(self, tracks):
+        """(i, j) pairs, in order, where track j (no anchor) may continue track i."""
+        heads = [(j, b.reports[0]) for j, b in enumerate(tracks) if b.anchor is None]
         pairs = []
+        if not heads:
+            return pairs
         for i, a in enumerate(tracks):
             end = self._end_of(a)
             if end is None:
                 continue
-            for j, b in enumerate(tracks):
-                if i != j and b.anchor is None and self._follows(*end, b.reports[0]):
+            for j, first in heads:
+                if i != j and self._follows(*end, first):
                     pairs.append((i, j))
         return pairs
 
