@@ -19,10 +19,11 @@ time on one core). ``--profile`` adds the functions that dominate on the largest
 (cProfile, by own time; it slows that grid's figures). Writes a log-log plot (``--plot``, default docs/multi_scale.png).
 
 Simulated grids are cached under ``/tmp/bintrack-multi-scale`` (simulating the 100-person
-grids takes minutes). Tracking took about 20 min wall on 2 cores shared with other work (load
-15–25); ``--quick`` stops at 30 people.
+grids takes minutes). Tracking took about 9 min wall on 2 cores shared with other work (load
+10–15); ``--quick`` stops at 30 people; ``--chains 1`` times one MCMCDA chain per scan
+instead of the default 4.
 
-Run: ``nice -n 10 .venv/bin/python benchmarks/multi_scale.py [--quick] [--profile]``
+Run: ``nice -n 10 .venv/bin/python benchmarks/multi_scale.py [--quick] [--profile] [--chains N]``
 """
 
 from __future__ import annotations
@@ -102,7 +103,7 @@ class Run:
     gospa: float
 
 
-def run(people: int, side: int, path: Path, profile: bool) -> tuple[Run, str]:
+def run(people: int, side: int, path: Path, profile: bool, chains: int | None = None) -> tuple[Run, str]:
     from bintrack.formats import TrackRow, open_dataset, read_truth
     from bintrack.messages import PositionReports, TrackSet
     from bintrack.evaluation.metrics import multi_target_scores, truth_paths
@@ -118,6 +119,11 @@ def run(people: int, side: int, path: Path, profile: bool) -> tuple[Run, str]:
     start, measured, until = peak_t - WARM_UP - BEFORE_PEAK, peak_t - BEFORE_PEAK, peak_t + AFTER_PEAK
     data = Window(data, start)
     tracker = make_tracker("mcmcda", data.deployment)
+    if chains is not None:
+        from bintrack.trackers.multi.mcmcda import MCMCDAConfig
+        from bintrack.trackers.multi.tracker import MCMCDATracker
+
+        tracker = MCMCDATracker(data.deployment, config=MCMCDAConfig(chains=chains))
     totals = {"fusion": 0.0, "mcmcda": 0.0}
     fusion, mcmcda = tracker.fusion, tracker.mcmcda
     fusion.update = Clock(fusion.update, totals, "fusion")
@@ -201,6 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--profile", action="store_true", help="cProfile the largest grid")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     parser.add_argument("--plot", type=Path, default=DEFAULT_PLOT)
+    parser.add_argument("--chains", type=int, help="MCMCDA chains per scan (default: the tracker's default, 4)")
     args = parser.parse_args(argv)
     args.cache.mkdir(parents=True, exist_ok=True)
     grids = GRIDS[:2] if args.quick else GRIDS
@@ -209,7 +216,7 @@ def main(argv: list[str] | None = None) -> int:
         path = dataset(people, side, args.cache)
         say(f"tracking {people} people on {side} x {side} nodes")
         start = time.perf_counter()
-        r, text = run(people, side, path, args.profile and (people, side) == grids[-1])
+        r, text = run(people, side, path, args.profile and (people, side) == grids[-1], args.chains)
         say(f"  {time.perf_counter() - start:.0f} s")
         runs.append(r)
         profile_text = text or profile_text

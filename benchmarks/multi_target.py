@@ -133,11 +133,18 @@ def dataset(spec: dict, cache: Path) -> Path:
 
 VARIANTS: dict[str, dict] = {
     "default": {},
+    "chains1": {"mcmcda": {"chains": 1}},
     "chains4": {"mcmcda": {"chains": 4}},
     "nmc2000": {"mcmcda": {"n_mc": 2000}},
     "min3": {"mcmcda": {"min_reports": 3}},
     "coast2": {"mcmcda": {"coast": 2}},
     "window8": {"mcmcda": {"window": 8}},
+    "q0.3": {"mcmcda": {"process_noise": 0.3}},
+    "ev1": {"mcmcda": {"extra_variance": 1.0}},
+    "ev9": {"mcmcda": {"extra_variance": 9.0}},
+    "birth3e-4": {"mcmcda": {"birth_rate": 3e-4}},
+    "expected0.5": {"fusion": {"expected_gain": 0.5}},
+    "min_gain2": {"fusion": {"min_gain": 2.0}},
 }
 
 
@@ -297,6 +304,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.only:
             for group in (tuning, held):
                 print(_ours_table(ours, group, [args.only], halves))
+            if args.json:  # for benchmarks/multi_chains.py
+                args.json.write_text(json.dumps({"ours": {f"{n}/{v}": [s.__dict__ | {"series": None} for s in sc]
+                                                          for (n, v), sc in ours.items()}}, default=float, indent=1))
             return 0
         stone: dict[tuple[str, str, vs.Setting], vs.Score | None] = {}
         best: dict[str, vs.Setting] = {}

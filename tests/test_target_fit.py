@@ -3,13 +3,19 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
+import pytest
 
+from bintrack.formats import open_dataset
+from bintrack.pipeline import run_tracker
+from bintrack.trackers import make_tracker
+from bintrack.trackers.multi import target_fit
 from bintrack.trackers.multi.fusion import GridFusion
 from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.mcmcda import MCMCDAConfig, OnlineMCMCDA
-from bintrack.messages import Deployment, DiskSensor, PositionReport, PositionReports, Region
+from bintrack.messages import Deployment, DiskSensor, PositionReport, PositionReports, Region, TrackSet
 from bintrack.trackers.multi.target_fit import Expectation
 
 from test_mcmcda import detecting_near, grid_deployment
@@ -120,3 +126,44 @@ def test_two_tracks_whose_people_share_detections_each_keep_a_target():
     assert len(reports) == 2 and not any(r.shared for r in reports)
     for x, y in people:
         assert any(near(r, x, y, 2.5) for r in reports)
+
+
+class _WholeGrid(target_fit._Scan):
+    """The fit with every gain recomputed over the whole grid from the targets' cells by
+    scipy's ``cover @ weights`` (how it was computed before gains were kept per cell and
+    updated only where a sensor changes)."""
+
+    def _whole(self, k, extra) -> np.ndarray:
+        covered = np.zeros(len(self.weight) - 1, dtype=bool)  # the last weight pads TargetFit.sums
+        for i, target in enumerate(self.targets):
+            if i != k:
+                covered[self.fit._sensors_of[target.cell]] = True
+        for c in extra:
+            covered[self.fit._sensors_of[c]] = True
+        return self.grid.cover @ (self.weight[:-1] * ~covered)
+
+    def _recount(self, remove, add) -> None:
+        super()._recount(remove, add)
+        self.base = self._whole(None, ())
+
+    def _gains_all(self, k, extra=()) -> np.ndarray:
+        return self._whole(k, extra)
+
+    def _gains_on(self, rows, k=None, extra=()) -> np.ndarray:
+        return self._whole(k, extra)[rows]
+
+
+def _tracks(folder: Path) -> list[tuple]:
+    dataset = open_dataset(folder)
+    return [(ts.t, tr.track, tr.x, tr.y, tr.vx, tr.vy) for ts in run_tracker(dataset, make_tracker("mcmcda", dataset.deployment))
+            if isinstance(ts, TrackSet) for tr in ts.tracks]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["darpa-grid-1", "darpa-grid-2", "darpa-grid-3"])
+def test_local_gain_updates_give_the_whole_grid_fit_exactly(name, monkeypatch):
+    folder = Path(__file__).resolve().parents[1] / "datasets" / name
+    local = _tracks(folder)
+    monkeypatch.setattr(target_fit, "_Scan", _WholeGrid)
+    whole = _tracks(folder)
+    assert len(local) > 50 and local == whole  # bit for bit: the same sums over the same sensors

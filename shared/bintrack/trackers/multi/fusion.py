@@ -122,6 +122,8 @@ class GridFusion:
             self._hull = None
         self.cell_range = ranges[self.owner]
         """per cell: the sensing range of the sensor it is assigned to, units"""
+        self.max_range = float(ranges.max())
+        """the longest sensing range, units"""
         self._fit = TargetFit(self)
 
     def depth(self, x: float, y: float) -> float:

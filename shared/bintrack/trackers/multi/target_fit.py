@@ -59,13 +59,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import cached_property
 from typing import Protocol
 
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
-from scipy.special import logsumexp
 
 from bintrack.messages import PositionReport
 from bintrack.trackers.multi.fusion_config import FusionConfig
@@ -143,6 +141,30 @@ class TargetFit:
         self.config = grid.config
         cover = grid.cover
         self._sensors_of = [cover.indices[cover.indptr[c]:cover.indptr[c + 1]] for c in range(cover.shape[0])]
+        by_sensor = cover.tocsc()
+        self._cells_of = [by_sensor.indices[by_sensor.indptr[s]:by_sensor.indptr[s + 1]] for s in range(cover.shape[1])]
+        # column c: cell c's sensors in ``cover``'s order, padded with index n, a sensor that
+        # weighs 0 (the last entry of a scan's per-sensor weights)
+        lengths = np.diff(cover.indptr)
+        self._padded = np.full((max(int(lengths.max(initial=0)), 1), cover.shape[0]), cover.shape[1], dtype=np.intp)
+        self._padded[np.arange(cover.nnz) - np.repeat(cover.indptr[:-1], lengths),
+                     np.repeat(np.arange(cover.shape[0]), lengths)] = cover.indices
+
+    def sums(self, rows: np.ndarray, per_sensor: np.ndarray) -> np.ndarray:
+        """Per cell of ``rows``: the sum of ``per_sensor`` (n + 1 entries, the last 0) over the
+        sensors covering it, added one sensor after another in ``cover``'s order from 0, as
+        ``cover @ per_sensor[:n]`` does, so the two agree bit for bit."""
+        values = per_sensor[self._padded[:, rows]]
+        total = np.zeros(values.shape[1])
+        for layer in values:
+            total += layer
+        return total
+
+    def cells_covering(self, sensors: np.ndarray) -> np.ndarray:
+        """The cells covered by any of ``sensors``, in index order."""
+        if len(sensors) == 0:
+            return np.zeros(0, dtype=np.intp)
+        return np.unique(np.concatenate([self._cells_of[s] for s in sensors]))
 
     def reports(self, detecting: np.ndarray, expected: list[Expectation] | tuple = ()) -> list[PositionReport]:
         """The position reports of one scan: ``detecting`` is every sensor's status in
@@ -171,42 +193,93 @@ class TargetFit:
 
 
 class _Scan:
-    """The targets placed so far in one scan, and the gains of the cells given them."""
+    """The targets placed so far in one scan, how many of them cover each sensor, and the gain
+    of every cell given all of them.
+
+    A target's gain at a cell depends only on the sensors covering that cell. So placing,
+    moving or removing a target changes the gains only of the cells covering a sensor it frees or
+    newly covers, and the gains given every target but one differ from those given all only at
+    the cells covering a sensor that target alone covers. Only those cells are recomputed (an
+    expected target's, only over its gate); the rest of the grid is read, so a step's cost no
+    longer grows with targets × cells. Every gain is the same sum over the same sensors, in the
+    same order, as a whole-grid ``cover @ weights`` gives, bit for bit.
+    """
 
     def __init__(self, fit: TargetFit, detecting: np.ndarray):
         self.fit = fit
         self.grid = fit.grid
         self.config = fit.config
         self.hits = detecting > 0
-        self.weight = np.where(self.hits, self.grid.log_hit_ratio, self.grid.log_miss_ratio)
+        # per sensor, nats, and a last entry 0 for the padding of ``TargetFit.sums``
+        self.weight = np.append(np.where(self.hits, self.grid.log_hit_ratio, self.grid.log_miss_ratio), 0.0)
         self.targets: list[_Target] = []
+        self.count = np.zeros(len(self.weight), dtype=np.int32)
+        """per sensor: the targets whose cell it covers (the padding's entry stays 0)"""
+        self.base = self.grid.cover @ self.weight[:-1]
+        """per cell: the gain (nats) of a target there given all the targets placed, kept up to
+        date where a sensor becomes free or covered"""
+        self.gains_alone = self.base.copy()
+        """per cell: the gain (nats) of a target there with no other target, the same for every
+        track's expected target in the scan"""
 
-    def _covered(self, cells) -> np.ndarray:
-        mask = np.zeros(len(self.weight), dtype=bool)
-        for c in cells:
-            mask[self.fit._sensors_of[c]] = True
-        return mask
+    def _recount(self, remove: int | None, add: int | None) -> None:
+        """Take a target off the cell ``remove`` and put one on ``add`` (either may be None),
+        and recompute ``base`` at the cells covering a sensor that became free or covered."""
+        sensors_of = self.fit._sensors_of
+        touched = np.concatenate([sensors_of[c] for c in (remove, add) if c is not None])
+        before = self.count[touched] == 0
+        if remove is not None:
+            self.count[sensors_of[remove]] -= 1
+        if add is not None:
+            self.count[sensors_of[add]] += 1
+        rows = self.fit.cells_covering(touched[(self.count[touched] == 0) != before])
+        self.base[rows] = self.fit.sums(rows, self._free_weight())
 
-    @cached_property
-    def gains_alone(self) -> np.ndarray:
-        """Per cell: the gain (nats) of a target there with no other target, the same for every
-        track's expected target in the scan."""
-        return self.gains([])
+    def _append(self, target: _Target) -> None:
+        self.targets.append(target)
+        self._recount(None, target.cell)
 
-    def gains(self, others: list[int]) -> np.ndarray:
-        """Per cell: the gain (nats) of a target there given targets at ``others``."""
-        return self.grid.cover @ (self.weight * ~self._covered(others))
+    def _remove(self, k: int) -> None:
+        self._recount(self.targets[k].cell, None)
+        del self.targets[k]
 
-    def new_hits(self, others: list[int]) -> np.ndarray:
-        """Per cell: the detections a target there would explain that ``others`` do not."""
-        return self.grid.cover @ (self.hits & ~self._covered(others)).astype(float)
+    def _move(self, target: _Target, cell: int) -> None:
+        old, target.cell = target.cell, cell
+        self._recount(old, cell)
 
-    def _others(self, k: int) -> list[int]:
-        return [t.cell for i, t in enumerate(self.targets) if i != k]
+    def _free(self, k: int | None = None, extra=()) -> np.ndarray:
+        """Per sensor: True where no target but target ``k`` (and none at the cells ``extra``) covers it."""
+        free = self.count == 0
+        if k is not None:
+            own = self.fit._sensors_of[self.targets[k].cell]
+            free[own] = self.count[own] == 1
+        for c in extra:
+            free[self.fit._sensors_of[c]] = False
+        return free
+
+    def _free_weight(self, k: int | None = None, extra=()) -> np.ndarray:
+        """Per sensor: its weight (nats) where ``_free``, else 0."""
+        return self.weight * self._free(k, extra)
+
+    def _gains_on(self, rows: np.ndarray, k: int | None = None, extra=()) -> np.ndarray:
+        """Gains (nats) of a target at the cells ``rows`` given every target but ``k`` (and
+        targets at ``extra``)."""
+        return self.fit.sums(rows, self._free_weight(k, extra))
+
+    def _gains_all(self, k: int, extra=()) -> np.ndarray:
+        """Per cell: the gain (nats) of a target there given every target but ``k`` and targets
+        at ``extra``: ``base``, recomputed where target ``k`` or ``extra`` reach."""
+        free = self._free(k, extra)
+        gain = self.base.copy()
+        rows = self.fit.cells_covering(np.flatnonzero((self.count == 0) != free))
+        gain[rows] = self.fit.sums(rows, self.weight * free)
+        return gain
 
     def _support(self, target: _Target, gain: np.ndarray) -> float:
-        """log Σ π e^gain over an expected target's gate: its evidence, nats."""
-        return float(logsumexp(target.log_prior + gain[target.gate]))
+        """log Σ π e^gain over an expected target's gate (``gain`` per gate cell): its evidence, nats."""
+        x = target.log_prior + gain
+        top = float(x.max())
+        return top + math.log(float(np.exp(x - top).sum()))
 
     def place_expected(self, e: int, expectation: Expectation) -> None:
         radius = self.config.expected_sigmas * expectation.sigma
@@ -218,18 +291,17 @@ class _Scan:
         # mass beyond the sensors' reach (a target leaving) supports nothing
         log_prior = -0.5 * d2 / expectation.sigma ** 2 - math.log(2 * math.pi * expectation.sigma ** 2 / self.grid.cell ** 2)
         target = _Target(cell=-1, expectation=e, gate=gate, log_prior=log_prior)
-        if self._support(target, self.gains_alone) >= self.config.expected_gain:
-            gain = self.gains([t.cell for t in self.targets])
-            target.cell = int(gate[np.argmax(gain[gate])])
-            self.targets.append(target)
+        if self._support(target, self.gains_alone[gate]) >= self.config.expected_gain:
+            target.cell = int(gate[np.argmax(self._gains_on(gate))])
+            self._append(target)
 
     def place_new(self) -> bool:
-        others = [t.cell for t in self.targets]
-        gain = np.where(self.new_hits(others) >= self.config.threshold, self.gains(others), -np.inf)
+        new_hits = self.grid.cover @ (self.hits & (self.count[:-1] == 0)).astype(float)
+        gain = np.where(new_hits >= self.config.threshold, self.base, -np.inf)
         best = int(np.argmax(gain))
         if not gain[best] >= self.config.min_gain:
             return False
-        self.targets.append(_Target(cell=best))
+        self._append(_Target(cell=best))
         return True
 
     def settle(self) -> None:
@@ -237,26 +309,31 @@ class _Scan:
         for _ in range(_MAX_SWEEPS):
             moved = False
             for k, target in enumerate(self.targets):
-                gain = self.gains(self._others(k))
-                cells = target.gate if target.gate is not None else slice(None)
-                best = int(np.argmax(gain[cells]))
-                best = int(target.gate[best]) if target.gate is not None else best
-                if gain[best] > gain[target.cell] + 1e-9:
-                    target.cell = best
+                if target.gate is not None:
+                    cells = target.gate
+                    gain = self._gains_on(cells, k)
+                    i = int(np.argmax(gain))
+                    best, better = int(cells[i]), gain[i] > gain[np.flatnonzero(cells == target.cell)[0]] + 1e-9
+                else:
+                    gain = self._gains_all(k)
+                    best = int(np.argmax(gain))
+                    better = gain[best] > gain[target.cell] + 1e-9
+                if better:
+                    self._move(target, best)
                     moved = True
             if not moved:
                 return
 
-    def _total(self, cells: list[int]) -> float:
-        return float((self.weight * self._covered(cells)).sum())
+    def _total(self, free_weight: np.ndarray) -> float:
+        """ℓ of the targets that leave the sensors of ``free_weight`` (from ``_free_weight``) free, nats."""
+        return float((self.weight[:-1] - free_weight[:-1]).sum())
 
     def split_one(self) -> bool:
         """Replace one new target by the two that explain the scan best, if that gains min_gain."""
         for k, target in enumerate(self.targets):
             if target.expectation is not None:
                 continue
-            others = self._others(k)
-            best_pair, best_total = None, self._total(others + [target.cell]) + self.config.min_gain
+            best_pair, best_total = None, self._total(self._free_weight()) + self.config.min_gain
             centre = self.grid.cells[target.cell]
             offset = 0.5 * float(self.grid.cell_range[target.cell])
             for angle in _SPLIT_ANGLES:
@@ -264,14 +341,13 @@ class _Scan:
                 pair = [int(self.grid.cell_tree.query(centre + u)[1]), int(self.grid.cell_tree.query(centre - u)[1])]
                 for _ in range(4):
                     for i in (0, 1):
-                        gain = self.gains(others + [pair[1 - i]])
-                        pair[i] = int(np.argmax(gain))
-                total = self._total(others + pair)
+                        pair[i] = int(np.argmax(self._gains_all(k, extra=[pair[1 - i]])))
+                total = self._total(self._free_weight(k, extra=pair))
                 if total > best_total:
                     best_pair, best_total = pair, total
             if best_pair is not None:
-                target.cell = best_pair[0]
-                self.targets.append(_Target(cell=best_pair[1]))
+                self._move(target, best_pair[0])
+                self._append(_Target(cell=best_pair[1]))
                 return True
         return False
 
@@ -280,24 +356,23 @@ class _Scan:
         while self.targets:
             margins = []
             for k, target in enumerate(self.targets):
-                gain = self.gains(self._others(k))
                 if target.expectation is not None:
-                    margins.append(self._support(target, gain) - self.config.expected_gain)
+                    margins.append(self._support(target, self._gains_on(target.gate, k)) - self.config.expected_gain)
                 else:
-                    margins.append(gain[target.cell] - self.config.min_gain)
+                    margins.append(float(self._gains_on(np.array([target.cell]), k)[0]) - self.config.min_gain)
             worst = int(np.argmin(margins))
             if margins[worst] >= 0:
                 return
-            del self.targets[worst]
+            self._remove(worst)
             self.settle()
 
     def report(self, k: int) -> PositionReport:
         target = self.targets[k]
-        gain = self.gains(self._others(k))
         near = np.asarray(self.grid.cell_tree.query_ball_point(self.grid.cells[target.cell],
-                                                               r=float(self.grid.cell_range[target.cell])))
-        return weighted_report(self.grid.cells[near], np.exp(gain[near] - gain[target.cell]), self.grid.cell,
-                               weight=max(float(gain[target.cell]), 0.0))
+                                                               r=float(self.grid.cell_range[target.cell])), dtype=int)
+        gain = self._gains_on(near, k)
+        here = float(gain[np.flatnonzero(near == target.cell)[0]])
+        return weighted_report(self.grid.cells[near], np.exp(gain - here), self.grid.cell, weight=max(here, 0.0))
 
     def shared_copies(self, reports: list[PositionReport], expected) -> list[PositionReport]:
         """Copies of reports for established tracks hidden in another track's blob (module docstring, 6)."""
