@@ -49,6 +49,7 @@ FLUSH_INTERVAL, FLUSH_TICKS = 5.0, 64  # s of wall clock or clock ticks between 
 CHUNK_SIZE = 1024 * 1024  # bytes: few chunks, so that the chunk index kept in memory stays small
 DEDUPE_AFTER_RETURN = 1024  # result messages checked for duplicates after a service came back
 RECENT_PER_KEY = 64  # payloads remembered per key of RESULTS, to record a message sent again only once
+PARSED_KEYS = 65536  # distinct keys whose parse is remembered (a bound against key floods)
 WAIT_LOG_INTERVAL = 5.0  # s of wall clock between "still waiting" lines
 
 
@@ -109,6 +110,7 @@ class Recorder(Service):
         self.last_t = 0.0
         self.last_tracks = float("-inf")  # event time of the newest track set recorded
         self.recent: dict[str, deque[bytes]] = {}
+        self.parsed: dict[str, tuple] = {}  # key → (its ParsedKey, its message type)
         self.gone: set[str] = set()  # alive/ keys of services that went away
         self.dedupe_left = 0  # result messages still checked for duplicates after a return
         self.flushed_at, self.unflushed_ticks = time.monotonic(), 0
@@ -195,12 +197,18 @@ class Recorder(Service):
         if self.writer is None or self.writer.closed:
             return
         key = str(sample.key_expr)
-        try:
-            parsed = parse_key(key)
-            cls = KIND_TYPES[parsed.kind]
-        except (ValueError, KeyError):
-            self.bad.report(key, "unknown key: not a key of a bintrack message")
-            return
+        known = self.parsed.get(key)
+        if known is None:
+            try:
+                parsed = parse_key(key)
+                known = (parsed, KIND_TYPES[parsed.kind])
+            except (ValueError, KeyError):
+                self.bad.report(key, "unknown key: not a key of a bintrack message")
+                return
+            if len(self.parsed) >= PARSED_KEYS:
+                self.parsed.clear()
+            self.parsed[key] = known
+        parsed, cls = known
         if parsed.kind == "progress":
             return
         message = self.decode(cls, sample)

@@ -57,9 +57,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="event time runs X times real time; 0 = as fast as flow control allows (default: %(default)s)")
     parser.add_argument("--loop", action="store_true",
                         help="play again after the end, shifted in event time so that it keeps increasing")
-    parser.add_argument("--clock-period", type=positive_float, default=0.5, metavar="S",
+    parser.add_argument("--clock-period", type=positive_float, default=0.05, metavar="S",
                         help="event time between clock ticks, s (default: %(default)s)")
-    parser.add_argument("--max-ahead", type=int_at_least(1), default=1, metavar="N",
+    parser.add_argument("--max-ahead", type=int_at_least(1), default=16, metavar="N",
                         help="clock ticks that may be unacknowledged by the slowest service (default: %(default)s)")
     parser.add_argument("--wait-for", action="append", default=[], metavar="SERVICE[,SERVICE…]",
                         help="publish nothing until each of these services holds a liveliness token; repeatable")
@@ -122,6 +122,10 @@ class Replay(Service):
         self.pauses = 0
 
     # -- bus wiring -------------------------------------------------------------------------
+
+    def listen_key(self) -> str:
+        """Replay hears only the services' progress reports (not the traffic it causes)."""
+        return self.keys.progress()
 
     async def setup(self) -> None:
         payload = encode(self.deployment)

@@ -343,6 +343,8 @@ class Clock(Message):
 
     t: Seconds
     sent: int | None = Field(None, ge=0, description="in a sensor agent's progress report: transitions it has sent so far")
+    released: float | None = Field(None, description="in a tracker service's progress report: its watermark, s — "
+                                   "every output of an event time before it has been published")
 
 
 class EndOfStream(Message):
@@ -369,21 +371,28 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
 M = TypeVar("M", bound=BaseModel)
 
 
+# Messages of scalar fields only, without aliases: their field dict is what model_dump(mode="json")
+# gives (same keys, same order, same values), so the hot path packs it directly.
+_FLAT = frozenset({RawSample, Transition, Clock, EndOfStream, LocalEstimate, TruthSample})
+
+
 def encode(message: BaseModel) -> bytes:
     """msgpack bytes of ``message`` with field names as keys (aliases where a field has one)."""
+    if type(message) in _FLAT:
+        return msgpack.packb(message.__dict__, use_bin_type=True)
     return msgpack.packb(message.model_dump(mode="json", by_alias=True), use_bin_type=True)
 
 
 def decode(cls: type[M], payload: bytes | bytearray | memoryview) -> M:
     """Decode and validate ``payload`` as ``cls``; raises :class:`MessageError` on any fault."""
     try:
-        obj: Any = msgpack.unpackb(bytes(payload), raw=False, strict_map_key=True)
+        obj: Any = msgpack.unpackb(payload, raw=False, strict_map_key=True)
     except Exception as exc:  # msgpack raises several unrelated types
         raise MessageError(f"not msgpack: {type(exc).__name__}: {exc}") from None
     if not isinstance(obj, dict):
         raise MessageError(f"expected a map for {cls.__name__}, got {type(obj).__name__}")
     try:
-        return cls.model_validate(obj)
+        return cls.__pydantic_validator__.validate_python(obj)
     except ValidationError as exc:
         raise MessageError(f"invalid {cls.__name__}: {first_error(exc)}") from None
 
