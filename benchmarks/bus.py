@@ -58,7 +58,13 @@ from bintrack.formats import open_dataset, write_dataset
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, RawSample, TrackSet, Transition, decode, encode
 from bintrack.live.recording import open_recording
+from bintrack.cli.export_command import track_rows
+from bintrack.pipeline import output_rows, run_tracker
+from bintrack.services import basestation as basestation_service
+from bintrack.services import peer_agent as peer_agent_service
+from bintrack.services import replay as replay_service
 from bintrack.sim.scenarios import simulate
+from bintrack.trackers import make_tracker
 
 REPO = Path(__file__).resolve().parents[1]
 LOOPBACK = "127.0.0.1"
@@ -69,12 +75,13 @@ PIPELINE_RUNS = 3
 PIPELINE_SCENARIO = dict(name="darpa-grid", seed=1, people=40, duration=1200.0)
 LATENCY_SOURCE = REPO / "datasets" / "darpa-grid-3"
 LATENCY_SLICE = 30.0  # s of event time
-CLOCK_PERIOD = 0.5  # replay's default --clock-period
-LATENCY_RUNS = (  # (label, peer --lateness, basestation --lateness or None for its default)
-    ("defaults (peer 1 s, base 2 s)", 1.0, None),
-    ("peer 0.5 s, base 1 s", 0.5, 1.0),
+CLOCK_PERIOD = replay_service.build_parser().get_default("clock_period")  # replay's default --clock-period, s
+PEER_DEFAULT_LATENESS = peer_agent_service.build_parser().get_default("lateness")
+BASESTATION_DEFAULT_LATENESS = basestation_service.build_parser().get_default("lateness")
+LATENCY_RUNS = (  # (label, peer --lateness, basestation --lateness; None for the service's default)
+    ("the services' defaults", None, None),
 )
-BASESTATION_DEFAULT_LATENESS = 2.0
+STACK_SCENARIO = dict(name="darpa-grid", seed=1, people=10, duration=3600.0)  # full stack with mcmcda
 
 _started = time.monotonic()
 LOAD_BEFORE = " / ".join(f"{x:.2f}" for x in os.getloadavg())
@@ -322,6 +329,73 @@ def pipeline_run(children: Children, session: zenoh.Session, source: Path, work:
     return run
 
 
+# --------------------------------------------------------------------------- 4. full stack
+
+
+@dataclass
+class StackResult:
+    """replay → sensor_agent → basestation (mcmcda) → recorder at --speed 0, beside the same
+    tracker offline in this process."""
+
+    events: int
+    span: float  # s of event time
+    transitions: int
+    track_sets: int
+    wall: float  # s, first raw sample → recorder done
+    cpu: dict[str, float | None]
+    offline_cpu: float  # s of CPU for the same tracker offline (bintrack track's code path)
+    identical: bool  # the recorded track rows are the offline ones
+
+    @property
+    def speed(self) -> float:
+        return self.span / self.wall
+
+
+def full_stack(children: Children, session: zenoh.Session, work: Path) -> StackResult:
+    options = dict(STACK_SCENARIO)
+    name = options.pop("name")
+    say(f"simulating {name} {options} for the full stack")
+    sim = simulate(name, **options)
+    source = write_dataset(work / "stack-dataset", sim.deployment, sim.events, sim.truth)
+    span = sim.events[-1].t - sim.events[0].t
+    keys = Keys("bench-stack")
+    recording = work / "stack.mcap"
+    done_at: list[float] = []
+    done_sub = session.declare_subscriber(keys.done("recorder"), lambda _s: done_at.append(time.time()))
+    tag = "stack"
+    try:
+        recorder = children.start("recorder", "--out", str(recording), "--net", keys.net, tag=tag)
+        agent = children.start("sensor_agent", "--net", keys.net, tag=tag)
+        base = children.start("basestation", "--tracker", "mcmcda", "--net", keys.net, tag=tag)
+        replay = children.start("replay", str(source), "--speed", "0", "--wait-for",
+                                "sensor_agent,basestation,recorder", "--net", keys.net, tag=tag)
+        say(f"full stack: replay → sensor_agent → basestation mcmcda → recorder on {len(sim.events)} events started")
+        children.check(recorder, recorder.wait(1800.0))
+        exited = time.time()
+        children.check(replay, replay.wait(30.0))
+        agent.stop()
+        base.stop()
+    finally:
+        done_sub.undeclare()
+    end = done_at[0] if done_at else exited
+    recorded = open_recording(recording)
+    first_raw_ns = min(r.received_ns for r in recorded.records(lambda key: "/raw/" in key))
+    transitions = sum(1 for _ in recorded.records(lambda key: key.endswith("/transition")))
+    live_rows = track_rows(recorded, "tracks")
+    track_sets = sum(1 for _ in recorded.records(lambda key: key.endswith("/tracks")))
+    say("full stack: the same tracker offline")
+    dataset = open_dataset(source)
+    cpu0 = time.process_time()
+    offline_rows = sorted(output_rows(run_tracker(dataset, make_tracker("mcmcda", dataset.deployment))))
+    offline_cpu = time.process_time() - cpu0
+    result = StackResult(len(sim.events), span, transitions, track_sets, end - first_raw_ns / 1e9,
+                         {c.name: c.cpu for c in (replay, agent, base, recorder)}, offline_cpu,
+                         live_rows == offline_rows)
+    say(f"full stack: {span:.0f} s of event time in {result.wall:.1f} s = {result.speed:.0f} × real time; "
+        f"offline {offline_cpu:.1f} s of CPU; rows identical: {result.identical}")
+    return result
+
+
 # --------------------------------------------------------------------------- 3. latency
 
 
@@ -360,7 +434,7 @@ def slice_dataset(source: Path, seconds: float, out: Path) -> tuple[Path, float,
 
 
 def latency(children: Children, session: zenoh.Session, source: Path, t_last: float, label: str,
-            peer_lateness: float, base_lateness: float | None, tag: str) -> LatencyResult:
+            peer_lateness: float | None, base_lateness: float | None, tag: str) -> LatencyResult:
     net = f"bench-{tag}"
     keys = Keys(net)
     raw: list[tuple[float, bytes]] = []
@@ -380,8 +454,10 @@ def latency(children: Children, session: zenoh.Session, source: Path, t_last: fl
     started: list[Child] = []
     try:
         started.append(children.start("sensor_agent", "--net", net, tag=tag))
-        started.append(children.start("peer_agent", "--tracker", "equal-weight", "--lateness", str(peer_lateness),
-                                      "--net", net, tag=tag))
+        peer_args = ["--tracker", "equal-weight", "--net", net]
+        if peer_lateness is not None:
+            peer_args += ["--lateness", str(peer_lateness)]
+        started.append(children.start("peer_agent", *peer_args, tag=tag))
         base_args = ["--tracker", "equal-weight", "--net", net]
         if base_lateness is not None:
             base_args += ["--lateness", str(base_lateness)]
@@ -436,7 +512,8 @@ def latency(children: Children, session: zenoh.Session, source: Path, t_last: fl
         return Latencies(len(items), np.asarray(total), np.asarray(beyond), flushed)
 
     base_hold = BASESTATION_DEFAULT_LATENESS if base_lateness is None else base_lateness
-    result = LatencyResult(label, peer_lateness, base_hold, measure(estimates, LocalEstimate, peer_lateness),
+    peer_hold = PEER_DEFAULT_LATENESS if peer_lateness is None else peer_lateness
+    result = LatencyResult(label, peer_hold, base_hold, measure(estimates, LocalEstimate, peer_hold),
                            measure(tracks, TrackSet, base_hold))
     say(f"latency [{label}]: {result.estimates.received} estimates ({result.estimates.flushed} at end of stream), "
         f"{result.tracks.received} tracks ({result.tracks.flushed} at end of stream) received")
@@ -451,7 +528,8 @@ def _ms(values: np.ndarray) -> str:
     return f"{p50 * 1e3:,.0f} / {p99 * 1e3:,.0f}"
 
 
-def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyResult], payload_size: int) -> str:
+def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyResult], payload_size: int,
+          stack: StackResult | None) -> str:
     rows: list[tuple[str, str, str]] = []
     raw_median = statistics.median(raw["publisher"])
     put_median = statistics.median(raw["session.put"])
@@ -466,6 +544,20 @@ def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyRe
     rows.append(("  same run: raw samples", f"{run.raw / run.wall:,.0f}", "samples/s"))
     rows.append(("  same run: clock ticks (flow-control round trips)", f"{pipe.ticks / run.wall:,.0f}", "ticks/s"))
     rows.append(("  same run: wall time, first raw sample → recorder done", f"{run.wall:.2f}", "s"))
+    for name, cpu in run.cpu.items():
+        rows.append((f"  same run: CPU per 1 000 transitions, {name}",
+                     "?" if cpu is None else f"{cpu / run.transitions * 1000:.3f}", "CPU-s"))
+    if stack is not None:
+        rows.append((f"full stack replay → sensor_agent → basestation mcmcda → recorder, --speed 0, "
+                     f"{STACK_SCENARIO['people']} people, {STACK_SCENARIO['duration']:g} s",
+                     f"{stack.speed:,.0f}", "× real time"))
+        rows.append(("  same run: wall time, first raw sample → recorder done", f"{stack.wall:.1f}", "s"))
+        for name, cpu in stack.cpu.items():
+            rows.append((f"  same run: CPU per 1 000 transitions, {name}",
+                         "?" if cpu is None else f"{cpu / stack.transitions * 1000:.3f}", "CPU-s"))
+        rows.append(("  the same tracker offline (one process, CPU time)",
+                     f"{stack.span / stack.offline_cpu:,.0f}", "× real time"))
+        rows.append(("  recorded track rows identical to offline", "yes" if stack.identical else "NO", ""))
     for result in lat:
         for what, hold, values in (("estimate (peer/*/estimate)", result.peer_lateness, result.estimates),
                                    ("track (tracks)", result.base_lateness, result.tracks)):
@@ -505,7 +597,7 @@ def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyRe
     return "\n".join(lines)
 
 
-def run(keep: Path | None) -> int:
+def run(keep: Path | None, skip_stack: bool = False) -> int:
     with tempfile.TemporaryDirectory(prefix="bintrack-bench-") as tmp:
         work = keep if keep is not None else Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
@@ -519,14 +611,17 @@ def run(keep: Path | None) -> int:
         try:
             payload = encode(Transition(t=123.456789, sensor="n123", value=1, previous=0, seq=17,
                                         source=f"{socket.gethostname()}-{os.getpid()}", source_seq=1234))
-            say(f"1/3 raw Zenoh: {RAW_RUNS} runs of {RAW_MESSAGES:,} messages of {len(payload)} bytes")
+            say(f"1/4 raw Zenoh: {RAW_RUNS} runs of {RAW_MESSAGES:,} messages of {len(payload)} bytes")
             raw = raw_zenoh(endpoint, payload, RAW_MESSAGES, RAW_RUNS)
 
             session = client_session(endpoint)
-            say("2/3 pipeline throughput")
+            say("2/4 pipeline throughput")
             pipe = pipeline(children, session, work)
 
-            say("3/3 latency at --speed 1")
+            say("3/4 full stack with mcmcda")
+            stack = None if skip_stack else full_stack(children, session, work)
+
+            say("4/4 latency at --speed 1")
             sliced, _t_first, t_last = slice_dataset(LATENCY_SOURCE, LATENCY_SLICE, work / "latency-dataset")
             lat = [latency(children, session, sliced, t_last, label, peer, base, tag=f"latency{k}")
                    for k, (label, peer, base) in enumerate(LATENCY_RUNS, start=1)]
@@ -536,7 +631,7 @@ def run(keep: Path | None) -> int:
                 session.close()
             router.close()
         say(f"done in {time.monotonic() - _started:.0f} s")
-        print(table(raw, pipe, lat, len(payload)))
+        print(table(raw, pipe, lat, len(payload), stack))
     return 0
 
 
@@ -544,11 +639,12 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--keep", type=Path, metavar="DIR",
                         help="keep the datasets, the recording and the service logs in DIR")
+    parser.add_argument("--no-stack", action="store_true", help="leave out the full-stack mcmcda run")
     args = parser.parse_args()
     # SIGTERM ends the run through the finally blocks, which stop every subprocess.
     signal.signal(signal.SIGTERM, _terminated)
     try:
-        return run(args.keep)
+        return run(args.keep, args.no_stack)
     except KeyboardInterrupt:
         say("interrupted; subprocesses stopped")
         return 130

@@ -100,7 +100,7 @@ class Basestation(TransitionConsumer):
             recent.append(payload)
         else:
             self.bad.report(str(sample.key_expr),
-                            f"late: t={estimate.t} is behind the watermark {self.released} s")
+                            f"late: t={estimate.t} is behind the watermark {self.released:g} s (lateness {self.args.lateness} s)")
 
     def on_peer_report(self, sample: zenoh.Sample) -> None:
         """A peer's estimate, to join the fused reports of its scan (mcmcda --estimates)."""
@@ -109,7 +109,7 @@ class Basestation(TransitionConsumer):
             self.bad.report(str(sample.key_expr), f"late: estimate at t={estimate.t} is behind the scans already tracked")
 
     def on_estimate_clock(self, sample: zenoh.Sample) -> None:
-        tick = self.decode(Clock, sample)
+        tick = self.read(Clock, sample)
         if tick is None:
             return
         self.last_tick = max(self.last_tick, tick.t)

@@ -36,7 +36,7 @@ from bintrack.live.bus import Service, UpstreamDone, add_bus_arguments, service_
 from bintrack.errors import CommandError
 from bintrack.keys import parse_key
 from bintrack.formats import FormatError
-from bintrack.messages import MessageError, TrackSet, decode
+from bintrack.messages import MessageError, TrackSet, decode, decode_view
 from bintrack.live.recording import KIND_TYPES, RecordingWriter, event_time, open_recording
 
 log = logging.getLogger("bintrack")
@@ -211,10 +211,12 @@ class Recorder(Service):
         parsed, cls = known
         if parsed.kind == "progress":
             return
-        message = self.decode(cls, sample)
-        if message is None:
-            return
         payload = sample.payload.to_bytes()
+        try:
+            message = decode_view(cls, payload)
+        except MessageError as exc:
+            self.bad.report(key, exc.reason)
+            return
         recent = self.recent.setdefault(key, deque(maxlen=RECENT_PER_KEY)) if parsed.kind in RESULTS else None
         if recent is not None and self.dedupe_left > 0:
             # an upstream service came back (restart, router): what it sends again is recorded

@@ -108,6 +108,7 @@ class Replay(Service):
         super().__init__(args)
         self.source_prefix = Keys(self.recording.net).prefix if self.recording is not None else None
         self.wanted = list(dict.fromkeys(name.strip() for item in args.wait_for for name in item.split(",") if name.strip()))
+        self.wanted_missing = list(self.wanted)  # those of them with no live instance
         self.filters = [zenoh.KeyExpr(k) for k in args.keys]
         self._matches: dict[str, bool] = {}
         self.alive: set[tuple[str, str]] = set()
@@ -172,10 +173,12 @@ class Replay(Service):
         else:
             self.alive.discard(entry)
             self.consumers.vanished(entry)
+        services = {service for service, _ in self.alive}
+        self.wanted_missing = [w for w in self.wanted if w not in services]
         self._changed.set()
 
     def _on_progress(self, sample: zenoh.Sample) -> None:
-        message = self.decode(Clock, sample)
+        message = self.read(Clock, sample)
         if message is not None:
             parsed = parse_key(str(sample.key_expr))
             self.consumers.reported((parsed.service, parsed.instance), message.t)
@@ -238,7 +241,7 @@ class Replay(Service):
 
     def _missing(self) -> list[str]:
         """The --wait-for services with no live instance, and the router if it is lost."""
-        missing = [w for w in self.wanted if not any(service == w for service, _ in self.alive)]
+        missing = self.wanted_missing
         return missing + ["the router"] if self.router_lost_at is not None else missing
 
     async def _hold_while_missing(self, t: float) -> bool:
@@ -330,7 +333,8 @@ class Replay(Service):
                     self.resume_after, skip_ack = None, True
                     self._ticked(action.t)
                 continue
-            if not await self._ready_for(action, skip_ack):
+            quick = isinstance(action, Publish) and not self.wanted_missing and self.router_lost_at is None
+            if not quick and not await self._ready_for(action, skip_ack):  # (a sample owes no acknowledgement)
                 break
             if not isinstance(action, Publish):
                 skip_ack = False  # the progress owed to the previous instance went to it

@@ -20,7 +20,7 @@ import zenoh
 from bintrack.live.bus import Service, add_bus_arguments, log, service_main
 from bintrack.formats import Event, check_value
 from bintrack.keys import parse_key
-from bintrack.messages import Clock, EndOfStream, MessageError, RawSample, SensorState, Transition, decode, encode
+from bintrack.messages import Clock, EndOfStream, MessageError, RawSample, SensorState, Transition, decode_view, encode
 from bintrack.transition_detector import TransitionDetector
 
 HISTORY = 256  # transitions kept per sensor for gap repair …
@@ -149,7 +149,7 @@ class SensorAgent(Service):
                               "sensors": {sid: h.last_t for sid, h in self.hosted.items()}})
 
     def on_raw(self, sample: zenoh.Sample) -> None:
-        raw = self.decode(RawSample, sample)
+        raw = self.read(RawSample, sample)
         if raw is None:
             return
         key = str(sample.key_expr)
@@ -173,7 +173,7 @@ class SensorAgent(Service):
 
     def on_clock(self, sample: zenoh.Sample) -> None:
         """A clock tick is acknowledged at once: every sample before it has been handled."""
-        message = self.decode(Clock, sample)
+        message = self.read(Clock, sample)
         if message is None:
             return
         if message.t - self.forgotten_at >= FORGET_EVERY:
@@ -185,7 +185,7 @@ class SensorAgent(Service):
         self.report_progress(message.t, sent=self.sent)
 
     def on_eos(self, sample: zenoh.Sample) -> None:
-        message = self.decode(EndOfStream, sample)
+        message = self.read(EndOfStream, sample)
         if message is not None:
             self.report_done(message.t)
 
@@ -211,7 +211,7 @@ class SensorAgent(Service):
 
 def _decode(cls, payload: bytes):
     try:
-        return decode(cls, payload)
+        return decode_view(cls, payload)
     except MessageError:
         return None
 

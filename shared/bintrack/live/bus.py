@@ -22,6 +22,7 @@ import argparse
 import asyncio
 import json
 import logging
+import math
 import os
 import pickle
 import signal
@@ -38,7 +39,7 @@ import zenoh
 from bintrack.errors import CommandError
 from bintrack.keys import Keys, parse_key
 from bintrack.live.control_guard import guard_control
-from bintrack.messages import Clock, EndOfStream, Message, MessageError, decode, encode
+from bintrack.messages import Clock, EndOfStream, Message, MessageError, decode, decode_view, encode
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_INBOX = 65536
@@ -46,6 +47,8 @@ DEFAULT_MAX_PAYLOAD = 64 * 1024  # bytes; no bintrack message comes near it
 MAX_SENDERS_LOGGED = 1024  # distinct senders of bad payloads named in the log; past that only counted
 PARENT_ENV = "BINTRACK_PARENT_PID"  # set by a supervisor (bintrack up): the service ends when that process does
 STATE_DIR_OPTION = "--state-dir"
+ACK_TICKS = 8  # progress reports pending at most (replay's --max-ahead must be at least this to never wait) …
+ACK_WAIT = 0.005  # … or s of wall clock since the last report, whichever comes first
 ROUTE_CACHE = 65536  # distinct keys whose handlers are remembered (a bound against key floods)
 GUARDED_KINDS = frozenset({"clock", "eos", "progress", "done"})  # what the control guard checks
 PARENT_CHECK = 1.0  # s between checks that the supervisor is still there
@@ -291,6 +294,10 @@ class Service:
         self._route_cache: dict[str, tuple[bool, tuple[Callable[[zenoh.Sample], None], ...]]] = {}
         self._network_subscriber = None
         self._token = None
+        self._progress: Clock | None = None  # a progress report not sent yet
+        self._unreported = 0
+        self._reported_at = -math.inf
+        self._progress_timer: asyncio.TimerHandle | None = None
         self.exit_status = 0
         self.routers: set[str] = set()  # the routers this session is connected to
         self.router_lost_at: float | None = None  # monotonic time the last router went, while none is back
@@ -392,10 +399,39 @@ class Service:
             self.bad.report(str(sample.key_expr), exc.reason)
             return None
 
+    def read(self, cls: type, sample: zenoh.Sample):
+        """As :meth:`decode`, but a hot message (RawSample, Transition, Clock, EndOfStream) comes
+        as a read-only view with the same fields (:func:`bintrack.messages.decode_view`)."""
+        try:
+            return decode_view(cls, sample.payload.to_bytes())
+        except MessageError as exc:
+            self.bad.report(str(sample.key_expr), exc.reason)
+            return None
+
     def report_progress(self, t: float, sent: int | None = None, released: float | None = None) -> None:
-        self.publish(self.keys.progress(self.name, self.instance), Clock(t=t, sent=sent, released=released))
+        """Report the clock tick ``t`` (s) handled (and, for a sensor agent, the transitions
+        ``sent``; for a tracker service, the watermark ``released``, s). Sent at once if
+        ACK_WAIT s passed since the last report or ACK_TICKS reports are pending, else within
+        ACK_WAIT s (the newest one): a report per tick at real time, one per few ticks when
+        replay runs as fast as it can, and never a tick left unacknowledged."""
+        self._progress = Clock(t=t, sent=sent, released=released)
+        self._unreported += 1
+        if self._unreported >= ACK_TICKS or time.monotonic() - self._reported_at >= ACK_WAIT:
+            self.flush_progress()
+        elif self._progress_timer is None:
+            self._progress_timer = self.loop.call_later(ACK_WAIT, self.flush_progress)
+
+    def flush_progress(self) -> None:
+        """Publish the pending progress report, if any."""
+        if self._progress_timer is not None:
+            self._progress_timer.cancel()
+            self._progress_timer = None
+        if self._progress is not None and not self.session.is_closed():
+            self.publish(self.keys.progress(self.name, self.instance), self._progress)
+        self._progress, self._unreported, self._reported_at = None, 0, time.monotonic()
 
     def report_done(self, t: float) -> None:
+        self.flush_progress()  # the last progress goes before done
         self.publish(self.keys.done(self.name, self.instance), EndOfStream(t=t))
 
     def stop(self) -> None:

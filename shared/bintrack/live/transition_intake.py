@@ -88,7 +88,7 @@ class TransitionConsumer(Service):
                 self.subscribe(self.keys.progress(service), self.on_upstream_progress)
 
     def on_upstream_progress(self, sample: zenoh.Sample) -> None:
-        report = self.decode(Clock, sample)
+        report = self.read(Clock, sample)
         if report is None:
             return
         parsed = parse_key(str(sample.key_expr))
@@ -193,7 +193,7 @@ class TransitionConsumer(Service):
     def on_agent_progress(self, sample: zenoh.Sample) -> None:
         """A sensor agent says how far it has handled its samples and how many transitions it
         has sent: fetch any that did not arrive, then move the watermark."""
-        report = self.decode(Clock, sample)
+        report = self.read(Clock, sample)
         if report is None:
             return
         source = parse_key(str(sample.key_expr)).instance
@@ -240,10 +240,10 @@ class TransitionConsumer(Service):
         self.newest[transition.sensor] = max(transition.t, self.newest.get(transition.sensor, -math.inf))
         if not self.driver.push(transition):
             self.bad.report(self.keys.transition(transition.sensor),
-                            f"late: t={transition.t} is behind the watermark {self.released} s")
+                            f"late: t={transition.t} is behind the watermark {self.released:g} s (lateness {self.args.lateness} s)")
 
     def on_clock(self, sample: zenoh.Sample) -> None:
-        tick = self.decode(Clock, sample)
+        tick = self.read(Clock, sample)
         if tick is None:
             return
         self.last_tick = max(self.last_tick, tick.t)
