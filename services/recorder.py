@@ -45,7 +45,7 @@ UPSTREAM = ("sensor_agent", "peer_agent", "basestation")
 # outputs a restarted service may send again, recorded once (transitions are not here: they
 # carry their seq, and remembering them per sensor would cost memory that grows for long)
 RESULTS = frozenset({"estimate", "fusion_reports", "tracks", "laser_objects", "motion_velocity"})
-FLUSH_INTERVAL, FLUSH_TICKS = 5.0, 64  # s of wall clock or clock ticks between two flushes of the file
+FLUSH_INTERVAL, FLUSH_SPAN = 5.0, 32.0  # s of wall clock or of event time between two flushes of the file
 CHUNK_SIZE = 1024 * 1024  # bytes: few chunks, so that the chunk index kept in memory stays small
 DEDUPE_AFTER_RETURN = 1024  # result messages checked for duplicates after a service came back
 RECENT_PER_KEY = 64  # payloads remembered per key of RESULTS, to record a message sent again only once
@@ -113,7 +113,7 @@ class Recorder(Service):
         self.parsed: dict[str, tuple] = {}  # key → (its ParsedKey, its message type)
         self.gone: set[str] = set()  # alive/ keys of services that went away
         self.dedupe_left = 0  # result messages still checked for duplicates after a return
-        self.flushed_at, self.unflushed_ticks = time.monotonic(), 0
+        self.flushed_at, self.flushed_t = time.monotonic(), None
         self.part_start: float | None = None  # event time of the first tick of the current file
         self._changed = asyncio.Event()
 
@@ -241,14 +241,15 @@ class Recorder(Service):
             self.last_tracks = max(self.last_tracks, t)
         elif parsed.kind == "clock":
             # each flush closes an MCAP chunk (its index, an entry per channel, stays in memory
-            # until the file is finalised), so not at every tick: every FLUSH_INTERVAL s or
-            # FLUSH_TICKS ticks. What a kill loses since is fetched back for the track sets
-            # (tracks?after=T); the other messages of that span are missing from the file.
+            # until the file is finalised), so not at every tick: every FLUSH_INTERVAL s of
+            # wall clock or FLUSH_SPAN s of event time. What a kill loses since is fetched back
+            # for the track sets (tracks?after=T); the other messages of that span are missing.
             now = time.monotonic()
-            self.unflushed_ticks += 1
-            if now - self.flushed_at >= FLUSH_INTERVAL or self.unflushed_ticks >= FLUSH_TICKS:
+            if self.flushed_t is None:
+                self.flushed_t = t
+            if now - self.flushed_at >= FLUSH_INTERVAL or t - self.flushed_t >= FLUSH_SPAN:
                 self.writer.flush()
-                self.flushed_at, self.unflushed_ticks = now, 0
+                self.flushed_at, self.flushed_t = now, t
             self.report_progress(message.t)
         elif parsed.kind == "eos":
             self.eos = message.t

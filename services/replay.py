@@ -33,7 +33,7 @@ from bintrack.live.control_guard import control_attachment
 from bintrack.errors import CommandError
 from bintrack.formats import FormatError, TruthRow, open_dataset
 from bintrack.keys import Keys, parse_key
-from bintrack.messages import Clock, EndOfStream, RawSample, TruthSample, encode
+from bintrack.messages import Clock, EndOfStream, TruthSample, encode, encode_raw_sample
 from bintrack.live.recording import Record, open_recording, replay_items, shift_payload
 from bintrack.live.replay_schedule import Consumers, End, Pacer, Publish, Tick, schedule
 
@@ -111,6 +111,7 @@ class Replay(Service):
         self.wanted_missing = list(self.wanted)  # those of them with no live instance
         self.filters = [zenoh.KeyExpr(k) for k in args.keys]
         self._matches: dict[str, bool] = {}
+        self.raw_keys: dict[str, str] = {}  # sensor id → its raw key
         self.alive: set[tuple[str, str]] = set()
         self.consumers = Consumers()
         self.last_tick: float | None = None
@@ -192,12 +193,14 @@ class Replay(Service):
         self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK, attachment=attachment)
 
     def _control(self) -> bytes:
-        """The attachment of this replay's clock and end of stream (see control_guard)."""
+        """The attachment of this replay's clock and end of stream (see control_guard). The step
+        it announces is the largest between two ticks a receiver may see: up to --max-ahead
+        ticks may be in flight, and lost together with the router."""
         step = self.args.clock_period
         if self.recording is not None:
             ticks = [t for t, item in replay_items(self.recording) if item is None]
             step = max([step, *(b - a for a, b in zip(ticks, ticks[1:]))])
-        return control_attachment(self.name, self.instance, step)
+        return control_attachment(self.name, self.instance, step * self.args.max_ahead)
 
     # -- the source -------------------------------------------------------------------------
 
@@ -210,7 +213,7 @@ class Replay(Service):
 
     def _pass(self) -> Iterable[tuple[float, object]]:
         if self.dataset is not None:
-            events = ((e.t, e) for e in self.dataset.events() if self._keep(self.keys.raw(e.sensor)))
+            events = ((e.t, e) for e in self.dataset.events() if not self.filters or self._keep(self.keys.raw(e.sensor)))
             if self.truth and self._keep(self.keys.truth()):
                 # truth.csv rows beside the events in event time; an event before a truth row at the same t
                 return heapq.merge(events, ((row.t, row) for row in self.truth), key=lambda item: item[0])
@@ -224,7 +227,8 @@ class Replay(Service):
         elif isinstance(item, TruthRow):
             self._put(self.keys.truth(), encode(TruthSample(t=action.t, target=item.target, x=item.x, y=item.y)))
         else:
-            key, payload = self.keys.raw(item.sensor), encode(RawSample(t=action.t, sensor=item.sensor, value=item.value))
+            key = self.raw_keys.get(item.sensor) or self.raw_keys.setdefault(item.sensor, self.keys.raw(item.sensor))
+            payload = encode_raw_sample(action.t, item.sensor, item.value)
             self._put(key, payload)
             self.recent.append((-math.inf if self.last_tick is None else self.last_tick, key, payload))
         self.published += 1

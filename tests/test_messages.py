@@ -109,3 +109,10 @@ def test_the_hot_path_views_have_the_models_fields_and_refuse_what_they_refuse()
             decode_view(RawSample, payload)
     with pytest.raises(MessageError, match="seq: Input should be greater than or equal to 1"):
         decode_view(Transition, msgpack.packb({**tr.model_dump(), "seq": 0}))
+
+
+def test_a_raw_sample_encoded_without_its_model_has_the_models_bytes():
+    from bintrack.messages import RawSample, encode, encode_raw_sample
+
+    for t, sensor, value in ((1, "a", 1), (2.5, "n17", -1), (0.0, "s", 0)):
+        assert encode_raw_sample(t, sensor, value) == encode(RawSample(t=t, sensor=sensor, value=value))

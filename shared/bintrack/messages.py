@@ -447,6 +447,13 @@ def encode(message: BaseModel) -> bytes:
     return msgpack.packb(message.model_dump(mode="json", by_alias=True), use_bin_type=True)
 
 
+def encode_raw_sample(t: float, sensor: str, value: int) -> bytes:
+    """``encode(RawSample(t=t, sensor=sensor, value=value))`` without building the model, for
+    fields already validated (a dataset's rows, checked when it was opened)."""
+    return msgpack.packb({"version": SCHEMA_VERSION, "t": float(t), "sensor": sensor, "value": int(value)},
+                         use_bin_type=True)
+
+
 def decode(cls: type[M], payload: bytes | bytearray | memoryview) -> M:
     """Decode and validate ``payload`` as ``cls``; raises :class:`MessageError` on any fault."""
     try:
