@@ -607,7 +607,7 @@ def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyRe
     return "\n".join(lines)
 
 
-def run(keep: Path | None, skip_stack: bool = False) -> int:
+def run(keep: Path | None, skip_stack: bool = False, stack_only: bool = False) -> int:
     with tempfile.TemporaryDirectory(prefix="bintrack-bench-") as tmp:
         work = keep if keep is not None else Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
@@ -619,6 +619,14 @@ def run(keep: Path | None, skip_stack: bool = False) -> int:
         children = Children(endpoint, work)
         session = None
         try:
+            if stack_only:
+                session = client_session(endpoint)
+                stack = full_stack(children, session, work)
+                print(f"full stack: {stack.span:.0f} s of event time in {stack.wall:.1f} s = {stack.speed:,.0f} × real "
+                      f"time; CPU per 1 000 transitions: " + ", ".join(
+                          f"{n} {c / stack.transitions * 1000:.3f} s" for n, c in stack.cpu.items() if c is not None)
+                      + f"; offline {stack.span / stack.offline_cpu:,.0f} × real time; rows identical: {stack.identical}")
+                return 0
             payload = encode(Transition(t=123.456789, sensor="n123", value=1, previous=0, seq=17,
                                         source=f"{socket.gethostname()}-{os.getpid()}", source_seq=1234))
             say(f"1/4 raw Zenoh: {RAW_RUNS} runs of {RAW_MESSAGES:,} messages of {len(payload)} bytes")
@@ -650,11 +658,12 @@ def main() -> int:
     parser.add_argument("--keep", type=Path, metavar="DIR",
                         help="keep the datasets, the recording and the service logs in DIR")
     parser.add_argument("--no-stack", action="store_true", help="leave out the full-stack mcmcda run")
+    parser.add_argument("--stack-only", action="store_true", help="only the full-stack mcmcda run")
     args = parser.parse_args()
     # SIGTERM ends the run through the finally blocks, which stop every subprocess.
     signal.signal(signal.SIGTERM, _terminated)
     try:
-        return run(args.keep, args.no_stack)
+        return run(args.keep, args.no_stack, args.stack_only)
     except KeyboardInterrupt:
         say("interrupted; subprocesses stopped")
         return 130

@@ -35,7 +35,7 @@ REPO = Path(__file__).resolve().parents[1]
 SCENARIO = dict(seed=1, people=10, duration=600.0)
 RATE = 250  # samples/s
 TOP = 12
-# cost groups: a sample counts in the first group one of whose words is in its stack
+# cost groups: a sample counts in the group of the innermost frame that names one of its words
 GROUPS = (
     ("tracker (mcmcda)", ("trackers/",)),
     ("MCAP write", ("mcap/", "RecordingWriter")),
@@ -79,6 +79,15 @@ def frame_name(frame: str) -> str:
     return f"{func} ({short})"
 
 
+def group_of(frames: list[str]) -> str:
+    """The cost group of the innermost frame of a stack that belongs to one."""
+    for frame in reversed(frames):
+        for group, words in GROUPS:
+            if any(word in frame for word in words):
+                return group
+    return "the rest: asyncio loop, hand-off, the services' own logic"
+
+
 def summarise(stacks: Path) -> tuple[int, list[tuple[str, int]], list[tuple[str, int]]]:
     """(samples, top functions by own samples, samples per cost group)."""
     own: Counter[str] = Counter()
@@ -92,12 +101,7 @@ def summarise(stacks: Path) -> tuple[int, list[tuple[str, int]], list[tuple[str,
         total += n
         frames = stack.split(";")
         own[frame_name(frames[-1])] += n
-        for group, words in GROUPS:
-            if any(word in stack for word in words):
-                groups[group] += n
-                break
-        else:
-            groups["the rest: asyncio loop, hand-off, the services' own logic"] += n
+        groups[group_of(frames)] += n
     return total, own.most_common(TOP), sorted(groups.items(), key=lambda item: -item[1])
 
 

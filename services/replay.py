@@ -40,6 +40,7 @@ from bintrack.live.replay_schedule import Consumers, End, Pacer, Publish, Tick, 
 log = logging.getLogger("bintrack")
 
 PROGRESS_INTERVAL = 5.0  # s of wall clock between progress lines
+YIELD_EVERY = 0.002  # s of wall clock between two turns given to the loop while publishing (waits give more)
 
 
 
@@ -326,7 +327,7 @@ class Replay(Service):
         plan = schedule(self._pass, period=self.args.clock_period, max_ahead=self.args.max_ahead,
                         recorded_ticks=self.recording is not None, loop=self.args.loop)
         control = self._control()
-        started = last_said = time.monotonic()
+        started = last_said = yielded_at = time.monotonic()
         skip_ack = False
         if self.resume_after is not None:
             log.info("replay: restarted; resuming after the tick at t=%g s (%d samples were published)",
@@ -359,7 +360,9 @@ class Replay(Service):
             if isinstance(action, Tick):
                 self._put(self.keys.clock(), encode(Clock(t=action.t)), control)
                 self._ticked(action.t)
-                await asyncio.sleep(0)  # let signals and progress reports in
+                if time.monotonic() - yielded_at >= YIELD_EVERY:
+                    await asyncio.sleep(0)  # let signals and progress reports in
+                    yielded_at = time.monotonic()
             else:
                 self._publish(action)
             now = time.monotonic()
