@@ -15,22 +15,30 @@ Everything runs on loopback (127.0.0.1) through one Zenoh router embedded in thi
    (its receipt time in the recording) to the recorder's ``control/done`` (sent once the file
    is finalised, after the sensor agent is done); transitions and raw samples are counted in
    the recording.
-   Replay is flow controlled: each 0.5 s clock tick waits for the previous one to be
-   acknowledged by every consumer, so the rate depends on events per tick.
-3. **Latency**: ``replay --speed 1`` of a 30 s slice of ``datasets/darpa-grid-3`` through
-   sensor_agent → peer_agent → basestation (``--tracker equal-weight``); a subscriber in this
-   process timestamps raw samples, the peers' estimates and the base station's tracks.
-   Latency = receipt time − the time the event was due under real-time pacing (receipt of
-   the first raw sample + (t − t of that sample)). The peer agents hold transitions until
-   the watermark (clock tick − ``--lateness``) passes them, so an estimate's latency is
-   ``--lateness`` plus up to one clock period by design, and a track's is the base
-   station's ``--lateness`` plus up to one period. Run with the defaults (peer 1 s, base
-   station 2 s) and with peer 0.5 s / base station 1 s. Also shown: receipt − when the tick
-   that released the output was due, i.e. what the bus and the services add beyond that
-   hold. Outputs released only by the end-of-stream flush are left out.
+   Replay is flow controlled: a clock tick (every ``--clock-period``, 0.05 s by default)
+   waits until every consumer acknowledged the tick ``--max-ahead`` (16) before it; the
+   services acknowledge every 8 ticks or 5 ms. Also: CPU seconds of each service per 1 000
+   transitions (user + system of the process, start-up included).
+3. **Full stack**: ``replay --speed 0`` → ``sensor_agent`` → ``basestation --tracker mcmcda``
+   → ``recorder`` on a simulated grid of 10 people for 3600 s of event time; event time / wall
+   time (× real time), CPU per service per 1 000 transitions, beside the same tracker run
+   offline in this process (its CPU time: the tracker's own bound), and whether the recorded
+   track rows are the offline ones.
+4. **Latency**: ``replay --speed 1`` of a 30 s slice of ``datasets/darpa-grid-3`` through
+   sensor_agent → peer_agent → basestation (``--tracker equal-weight``), the services'
+   default options; a subscriber in this process timestamps raw samples, the peers'
+   estimates and the base station's tracks. Latency = receipt time − the time the event was
+   due under real-time pacing (receipt of the first raw sample + (t − t of that sample)). A
+   peer agent releases a transition once the watermark passes it: the least of the clock
+   tick − ``--lateness`` (default 0) and the sensor agents' reported progress; the base
+   station likewise waits for the peers' released watermark. So an estimate's latency is up
+   to one clock period by design plus what the bus and the services add; also shown:
+   receipt − when the tick that released the output was due. Outputs released only by the
+   end-of-stream flush are left out.
 
-Run: ``.venv/bin/python benchmarks/bus.py`` (about 1.7 minutes; progress on stderr, table on
-stdout). ``--keep DIR`` keeps the datasets, recording and service logs there.
+Run: ``nice -n 10 .venv/bin/python benchmarks/bus.py`` (a few minutes; progress on stderr, table
+on stdout). ``--keep DIR`` keeps the datasets, recording and service logs there; ``--no-stack``
+leaves out part 3.
 """
 
 from __future__ import annotations
@@ -58,7 +66,13 @@ from bintrack.formats import open_dataset, write_dataset
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, RawSample, TrackSet, Transition, decode, encode
 from bintrack.live.recording import open_recording
+from bintrack.cli.export_command import track_rows
+from bintrack.pipeline import output_rows, run_tracker
+from bintrack.services import basestation as basestation_service
+from bintrack.services import peer_agent as peer_agent_service
+from bintrack.services import replay as replay_service
 from bintrack.sim.scenarios import simulate
+from bintrack.trackers import make_tracker
 
 REPO = Path(__file__).resolve().parents[1]
 LOOPBACK = "127.0.0.1"
@@ -69,12 +83,13 @@ PIPELINE_RUNS = 3
 PIPELINE_SCENARIO = dict(name="darpa-grid", seed=1, people=40, duration=1200.0)
 LATENCY_SOURCE = REPO / "datasets" / "darpa-grid-3"
 LATENCY_SLICE = 30.0  # s of event time
-CLOCK_PERIOD = 0.5  # replay's default --clock-period
-LATENCY_RUNS = (  # (label, peer --lateness, basestation --lateness or None for its default)
-    ("defaults (peer 1 s, base 2 s)", 1.0, None),
-    ("peer 0.5 s, base 1 s", 0.5, 1.0),
+CLOCK_PERIOD = replay_service.build_parser().get_default("clock_period")  # replay's default --clock-period, s
+PEER_DEFAULT_LATENESS = peer_agent_service.build_parser().get_default("lateness")
+BASESTATION_DEFAULT_LATENESS = basestation_service.build_parser().get_default("lateness")
+LATENCY_RUNS = (  # (label, peer --lateness, basestation --lateness; None for the service's default)
+    ("the services' defaults", None, None),
 )
-BASESTATION_DEFAULT_LATENESS = 2.0
+STACK_SCENARIO = dict(name="darpa-grid", seed=1, people=10, duration=3600.0)  # full stack with mcmcda
 
 _started = time.monotonic()
 LOAD_BEFORE = " / ".join(f"{x:.2f}" for x in os.getloadavg())
@@ -322,6 +337,73 @@ def pipeline_run(children: Children, session: zenoh.Session, source: Path, work:
     return run
 
 
+# --------------------------------------------------------------------------- 4. full stack
+
+
+@dataclass
+class StackResult:
+    """replay → sensor_agent → basestation (mcmcda) → recorder at --speed 0, beside the same
+    tracker offline in this process."""
+
+    events: int
+    span: float  # s of event time
+    transitions: int
+    track_sets: int
+    wall: float  # s, first raw sample → recorder done
+    cpu: dict[str, float | None]
+    offline_cpu: float  # s of CPU for the same tracker offline (bintrack track's code path)
+    identical: bool  # the recorded track rows are the offline ones
+
+    @property
+    def speed(self) -> float:
+        return self.span / self.wall
+
+
+def full_stack(children: Children, session: zenoh.Session, work: Path) -> StackResult:
+    options = dict(STACK_SCENARIO)
+    name = options.pop("name")
+    say(f"simulating {name} {options} for the full stack")
+    sim = simulate(name, **options)
+    source = write_dataset(work / "stack-dataset", sim.deployment, sim.events, sim.truth)
+    span = sim.events[-1].t - sim.events[0].t
+    keys = Keys("bench-stack")
+    recording = work / "stack.mcap"
+    done_at: list[float] = []
+    done_sub = session.declare_subscriber(keys.done("recorder"), lambda _s: done_at.append(time.time()))
+    tag = "stack"
+    try:
+        recorder = children.start("recorder", "--out", str(recording), "--net", keys.net, tag=tag)
+        agent = children.start("sensor_agent", "--net", keys.net, tag=tag)
+        base = children.start("basestation", "--tracker", "mcmcda", "--net", keys.net, tag=tag)
+        replay = children.start("replay", str(source), "--speed", "0", "--wait-for",
+                                "sensor_agent,basestation,recorder", "--net", keys.net, tag=tag)
+        say(f"full stack: replay → sensor_agent → basestation mcmcda → recorder on {len(sim.events)} events started")
+        children.check(recorder, recorder.wait(1800.0))
+        exited = time.time()
+        children.check(replay, replay.wait(30.0))
+        agent.stop()
+        base.stop()
+    finally:
+        done_sub.undeclare()
+    end = done_at[0] if done_at else exited
+    recorded = open_recording(recording)
+    first_raw_ns = min(r.received_ns for r in recorded.records(lambda key: "/raw/" in key))
+    transitions = sum(1 for _ in recorded.records(lambda key: key.endswith("/transition")))
+    live_rows = track_rows(recorded, "tracks")
+    track_sets = sum(1 for _ in recorded.records(lambda key: key.endswith("/tracks")))
+    say("full stack: the same tracker offline")
+    dataset = open_dataset(source)
+    cpu0 = time.process_time()
+    offline_rows = sorted(output_rows(run_tracker(dataset, make_tracker("mcmcda", dataset.deployment))))
+    offline_cpu = time.process_time() - cpu0
+    result = StackResult(len(sim.events), span, transitions, track_sets, end - first_raw_ns / 1e9,
+                         {c.name: c.cpu for c in (replay, agent, base, recorder)}, offline_cpu,
+                         live_rows == offline_rows)
+    say(f"full stack: {span:.0f} s of event time in {result.wall:.1f} s = {result.speed:.0f} × real time; "
+        f"offline {offline_cpu:.1f} s of CPU; rows identical: {result.identical}")
+    return result
+
+
 # --------------------------------------------------------------------------- 3. latency
 
 
@@ -360,7 +442,7 @@ def slice_dataset(source: Path, seconds: float, out: Path) -> tuple[Path, float,
 
 
 def latency(children: Children, session: zenoh.Session, source: Path, t_last: float, label: str,
-            peer_lateness: float, base_lateness: float | None, tag: str) -> LatencyResult:
+            peer_lateness: float | None, base_lateness: float | None, tag: str) -> LatencyResult:
     net = f"bench-{tag}"
     keys = Keys(net)
     raw: list[tuple[float, bytes]] = []
@@ -380,8 +462,10 @@ def latency(children: Children, session: zenoh.Session, source: Path, t_last: fl
     started: list[Child] = []
     try:
         started.append(children.start("sensor_agent", "--net", net, tag=tag))
-        started.append(children.start("peer_agent", "--tracker", "equal-weight", "--lateness", str(peer_lateness),
-                                      "--net", net, tag=tag))
+        peer_args = ["--tracker", "equal-weight", "--net", net]
+        if peer_lateness is not None:
+            peer_args += ["--lateness", str(peer_lateness)]
+        started.append(children.start("peer_agent", *peer_args, tag=tag))
         base_args = ["--tracker", "equal-weight", "--net", net]
         if base_lateness is not None:
             base_args += ["--lateness", str(base_lateness)]
@@ -436,7 +520,8 @@ def latency(children: Children, session: zenoh.Session, source: Path, t_last: fl
         return Latencies(len(items), np.asarray(total), np.asarray(beyond), flushed)
 
     base_hold = BASESTATION_DEFAULT_LATENESS if base_lateness is None else base_lateness
-    result = LatencyResult(label, peer_lateness, base_hold, measure(estimates, LocalEstimate, peer_lateness),
+    peer_hold = PEER_DEFAULT_LATENESS if peer_lateness is None else peer_lateness
+    result = LatencyResult(label, peer_hold, base_hold, measure(estimates, LocalEstimate, peer_hold),
                            measure(tracks, TrackSet, base_hold))
     say(f"latency [{label}]: {result.estimates.received} estimates ({result.estimates.flushed} at end of stream), "
         f"{result.tracks.received} tracks ({result.tracks.flushed} at end of stream) received")
@@ -451,7 +536,8 @@ def _ms(values: np.ndarray) -> str:
     return f"{p50 * 1e3:,.0f} / {p99 * 1e3:,.0f}"
 
 
-def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyResult], payload_size: int) -> str:
+def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyResult], payload_size: int,
+          stack: StackResult | None) -> str:
     rows: list[tuple[str, str, str]] = []
     raw_median = statistics.median(raw["publisher"])
     put_median = statistics.median(raw["session.put"])
@@ -466,6 +552,20 @@ def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyRe
     rows.append(("  same run: raw samples", f"{run.raw / run.wall:,.0f}", "samples/s"))
     rows.append(("  same run: clock ticks (flow-control round trips)", f"{pipe.ticks / run.wall:,.0f}", "ticks/s"))
     rows.append(("  same run: wall time, first raw sample → recorder done", f"{run.wall:.2f}", "s"))
+    for name, cpu in run.cpu.items():
+        rows.append((f"  same run: CPU per 1 000 transitions, {name}",
+                     "?" if cpu is None else f"{cpu / run.transitions * 1000:.3f}", "CPU-s"))
+    if stack is not None:
+        rows.append((f"full stack replay → sensor_agent → basestation mcmcda → recorder, --speed 0, "
+                     f"{STACK_SCENARIO['people']} people, {STACK_SCENARIO['duration']:g} s",
+                     f"{stack.speed:,.0f}", "× real time"))
+        rows.append(("  same run: wall time, first raw sample → recorder done", f"{stack.wall:.1f}", "s"))
+        for name, cpu in stack.cpu.items():
+            rows.append((f"  same run: CPU per 1 000 transitions, {name}",
+                         "?" if cpu is None else f"{cpu / stack.transitions * 1000:.3f}", "CPU-s"))
+        rows.append(("  the same tracker offline (one process, CPU time)",
+                     f"{stack.span / stack.offline_cpu:,.0f}", "× real time"))
+        rows.append(("  recorded track rows identical to offline", "yes" if stack.identical else "NO", ""))
     for result in lat:
         for what, hold, values in (("estimate (peer/*/estimate)", result.peer_lateness, result.estimates),
                                    ("track (tracks)", result.base_lateness, result.tracks)):
@@ -486,7 +586,8 @@ def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyRe
     lines.append("")
     lines.append(f"pipeline runs: {', '.join(f'{r.rate:,.0f}' for r in pipe.runs)} transitions/s; per transition "
                  "the bus carries 2 puts and 3 deliveries (raw → sensor_agent and recorder, transition → "
-                 "recorder), plus one tick round trip per clock period")
+                 "recorder), plus per clock tick one put and two deliveries, and a progress report per service "
+                 "every 8 ticks or 5 ms")
     lines.append(f"pipeline dataset: simulated darpa-grid, seed {PIPELINE_SCENARIO['seed']}, "
                  f"{PIPELINE_SCENARIO['people']} people, {PIPELINE_SCENARIO['duration']:g} s: {pipe.events} events "
                  f"(all transitions), {pipe.ticks} clock ticks of {CLOCK_PERIOD:g} s = "
@@ -497,15 +598,16 @@ def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyRe
                  f"{os.cpu_count()} cores; load average before the benchmark {LOAD_BEFORE}")
     lines.append(f"latency dataset: first {LATENCY_SLICE:g} s of {LATENCY_SOURCE.relative_to(REPO)} "
                  "(replay --speed 1, tracker equal-weight)")
-    lines.append("latency includes, by design, the event-time lateness hold (peer_agent --lateness for an "
-                 f"estimate, basestation --lateness for a track) plus up to one clock period ({CLOCK_PERIOD:g} s): "
-                 "a transition is released at the first tick T with t < T − lateness. 'beyond' = receipt − "
-                 "when that tick was due: what the bus and the services add. Outputs released only by the "
-                 "end-of-stream flush are left out.")
+    lines.append(f"latency includes, by design, up to one clock period ({CLOCK_PERIOD:g} s) plus the lateness hold "
+                 f"(peer_agent --lateness {PEER_DEFAULT_LATENESS:g} s for an estimate, basestation --lateness "
+                 f"{BASESTATION_DEFAULT_LATENESS:g} s for a track): a transition is released at the first tick T with "
+                 "t < T − lateness once the upstream services reported progress to T. 'beyond' = receipt − when "
+                 "that tick was due: what the bus and the services add. Outputs released only by the end-of-stream "
+                 "flush are left out.")
     return "\n".join(lines)
 
 
-def run(keep: Path | None) -> int:
+def run(keep: Path | None, skip_stack: bool = False, stack_only: bool = False) -> int:
     with tempfile.TemporaryDirectory(prefix="bintrack-bench-") as tmp:
         work = keep if keep is not None else Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
@@ -517,16 +619,27 @@ def run(keep: Path | None) -> int:
         children = Children(endpoint, work)
         session = None
         try:
+            if stack_only:
+                session = client_session(endpoint)
+                stack = full_stack(children, session, work)
+                print(f"full stack: {stack.span:.0f} s of event time in {stack.wall:.1f} s = {stack.speed:,.0f} × real "
+                      f"time; CPU per 1 000 transitions: " + ", ".join(
+                          f"{n} {c / stack.transitions * 1000:.3f} s" for n, c in stack.cpu.items() if c is not None)
+                      + f"; offline {stack.span / stack.offline_cpu:,.0f} × real time; rows identical: {stack.identical}")
+                return 0
             payload = encode(Transition(t=123.456789, sensor="n123", value=1, previous=0, seq=17,
                                         source=f"{socket.gethostname()}-{os.getpid()}", source_seq=1234))
-            say(f"1/3 raw Zenoh: {RAW_RUNS} runs of {RAW_MESSAGES:,} messages of {len(payload)} bytes")
+            say(f"1/4 raw Zenoh: {RAW_RUNS} runs of {RAW_MESSAGES:,} messages of {len(payload)} bytes")
             raw = raw_zenoh(endpoint, payload, RAW_MESSAGES, RAW_RUNS)
 
             session = client_session(endpoint)
-            say("2/3 pipeline throughput")
+            say("2/4 pipeline throughput")
             pipe = pipeline(children, session, work)
 
-            say("3/3 latency at --speed 1")
+            say("3/4 full stack with mcmcda")
+            stack = None if skip_stack else full_stack(children, session, work)
+
+            say("4/4 latency at --speed 1")
             sliced, _t_first, t_last = slice_dataset(LATENCY_SOURCE, LATENCY_SLICE, work / "latency-dataset")
             lat = [latency(children, session, sliced, t_last, label, peer, base, tag=f"latency{k}")
                    for k, (label, peer, base) in enumerate(LATENCY_RUNS, start=1)]
@@ -536,7 +649,7 @@ def run(keep: Path | None) -> int:
                 session.close()
             router.close()
         say(f"done in {time.monotonic() - _started:.0f} s")
-        print(table(raw, pipe, lat, len(payload)))
+        print(table(raw, pipe, lat, len(payload), stack))
     return 0
 
 
@@ -544,11 +657,13 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--keep", type=Path, metavar="DIR",
                         help="keep the datasets, the recording and the service logs in DIR")
+    parser.add_argument("--no-stack", action="store_true", help="leave out the full-stack mcmcda run")
+    parser.add_argument("--stack-only", action="store_true", help="only the full-stack mcmcda run")
     args = parser.parse_args()
     # SIGTERM ends the run through the finally blocks, which stop every subprocess.
     signal.signal(signal.SIGTERM, _terminated)
     try:
-        return run(args.keep)
+        return run(args.keep, args.no_stack, args.stack_only)
     except KeyboardInterrupt:
         say("interrupted; subprocesses stopped")
         return 130

@@ -3,7 +3,8 @@
 ``python -m bintrack.services.basestation --tracker NAME``:
 
 * for a tracker the peer agents run (the baselines, arc, sector) it orders the peers'
-  ``LocalEstimate``s by event time (watermark = clock tick − ``--lateness``, ties by node id)
+  ``LocalEstimate``s by event time (watermark = the least of the clock tick − ``--lateness`` and
+  the peer agents' released watermarks, ties by node id)
   and publishes each as the single-target ``TrackSet`` (track 0) on ``tracks``;
 * for a base-station tracker it runs the tracker itself on the network's transitions (in event
   time, gaps repaired like a peer agent) and publishes what it gives: ``fusion/reports`` and
@@ -31,7 +32,7 @@ from operator import attrgetter
 
 import zenoh
 
-from bintrack.argtypes import positive_float
+from bintrack.argtypes import non_negative_float, positive_float
 from bintrack.live.bus import add_bus_arguments, log, service_main
 from bintrack.errors import CommandError
 from bintrack.messages import (Clock, LineObjectEstimate, LocalEstimate, Message, PositionReports, Track, TrackSet,
@@ -90,7 +91,8 @@ class Basestation(TransitionConsumer):
         self.recent_estimates: dict[str, deque[bytes]] = {}  # per node, its last estimates' payloads
         self.subscribe(self.keys.estimate(), self.on_estimate)
         self.subscribe(self.keys.clock(), self.on_estimate_clock)
-        self.follow_end_of_stream(["peer_agent"], lambda t: self.relay(self.estimates.release_all()))
+        self.follow_upstream(("peer_agent",))
+        self.follow_end_of_stream(["peer_agent"], lambda t: self.emit(self.relayed(self.estimates.release_all())))
 
     def valid_estimate(self, sample: zenoh.Sample, tracker: str) -> LocalEstimate | None:
         """The decoded estimate of ``sample`` if it is of a known node, on its own key and by
@@ -120,7 +122,7 @@ class Basestation(TransitionConsumer):
             recent.append(payload)
         else:
             self.bad.report(str(sample.key_expr),
-                            f"late: t={estimate.t} is behind the watermark (lateness {self.args.lateness} s)")
+                            f"late: t={estimate.t} is behind the watermark {self.released:g} s (lateness {self.args.lateness} s)")
 
     def on_peer_report(self, sample: zenoh.Sample) -> None:
         """A peer's estimate, to join the fused reports of its scan (mcmcda --estimates)."""
@@ -129,16 +131,23 @@ class Basestation(TransitionConsumer):
             self.bad.report(str(sample.key_expr), f"late: estimate at t={estimate.t} is behind the scans already tracked")
 
     def on_estimate_clock(self, sample: zenoh.Sample) -> None:
-        tick = self.decode(Clock, sample)
+        tick = self.read(Clock, sample)
         if tick is None:
             return
-        self.relay(self.estimates.release(tick.t - self.args.lateness))
-        self.report_progress(tick.t)
+        self.last_tick = max(self.last_tick, tick.t)
+        self.release(report=False)
+        self.report_released()
 
-    def relay(self, estimates: list[LocalEstimate]) -> None:
-        self.emit([TrackSet(t=e.t, tracker=self.args.tracker,
-                            tracks=[Track(track=SINGLE_TARGET_TRACK, x=e.x, y=e.y, vx=e.vx, vy=e.vy)])
-                   for e in estimates])
+    def advance(self, watermark: float) -> list[Message]:
+        if runs_on_peers(self.args.tracker):  # relaying the peers' estimates, in event-time order
+            return self.relayed(self.estimates.release(watermark))
+        return super().advance(watermark)
+
+    def relayed(self, estimates: list[LocalEstimate]) -> list[TrackSet]:
+        """Each estimate as the single-target track set."""
+        return [TrackSet(t=e.t, tracker=self.args.tracker,
+                         tracks=[Track(track=SINGLE_TARGET_TRACK, x=e.x, y=e.y, vx=e.vx, vy=e.vy)])
+                for e in estimates]
 
     def emit(self, outputs: list[Message]) -> None:
         for out in outputs:
@@ -195,9 +204,9 @@ class Basestation(TransitionConsumer):
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m bintrack.services.basestation", description=__doc__.splitlines()[0])
     parser.add_argument("--tracker", required=True, choices=TRACKER_NAMES, help="the tracker whose results to publish")
-    parser.add_argument("--lateness", type=positive_float, default=2.0,
-                        help="event-time lateness bound of estimates, s (default: %(default)s; "
-                        "at least the peer agents' lateness plus one clock period)")
+    parser.add_argument("--lateness", type=non_negative_float, default=0.0,
+                        help="extra event-time hold behind the clock tick, s; the watermark also waits for the "
+                        "upstream agents' progress, which keeps results exact without it (default: %(default)s)")
     parser.add_argument("--speed", type=positive_float,
                         help="mcmcda: the fastest target; motion-rw: the initial speed guess; units/s")
     parser.add_argument("--region", metavar="NAME", help="serve this region of the deployment's regions only")

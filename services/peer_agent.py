@@ -2,7 +2,8 @@
 
 ``python -m bintrack.services.peer_agent --tracker NAME [--sensors ID,…] [--region NAME]`` hears the
 transitions of the network, repairs ``seq`` gaps from the sensors' ``state`` queryables, feeds
-the tracker in event-time order (watermark = clock tick − ``--lateness``, ties by sensor id)
+the tracker in event-time order (watermark = the least of the clock tick − ``--lateness`` and the
+sensor agents' progress, ties by sensor id)
 and publishes each hosted node's ``LocalEstimate`` on ``peer/<node>/estimate``.
 """
 
@@ -11,7 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from bintrack.argtypes import positive_float
+from bintrack.argtypes import non_negative_float, positive_float
 from bintrack.live.bus import add_bus_arguments, service_main
 from bintrack.messages import LocalEstimate
 from bintrack.errors import CommandError
@@ -60,8 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "them in it); takes the transitions of the nodes within two sensing ranges of it")
     parser.add_argument("--speed", type=positive_float, help="target speed, units/s, for trackers that use one")
     add_tracker_arguments(parser)
-    parser.add_argument("--lateness", type=positive_float, default=1.0,
-                        help="event-time lateness bound of transitions, s (default: %(default)s)")
+    parser.add_argument("--lateness", type=non_negative_float, default=0.0,
+                        help="extra event-time hold behind the clock tick, s; the watermark also waits for the "
+                        "sensor agents' progress, which keeps results exact without it (default: %(default)s)")
     parser.add_argument("--id", help="instance id (default: host-pid)")
     add_bus_arguments(parser)
     return parser

@@ -36,7 +36,7 @@ from bintrack.live.bus import Service, UpstreamDone, add_bus_arguments, service_
 from bintrack.errors import CommandError
 from bintrack.keys import parse_key
 from bintrack.formats import FormatError
-from bintrack.messages import MessageError, TrackSet, decode
+from bintrack.messages import MessageError, TrackSet, decode, decode_view
 from bintrack.live.recording import KIND_TYPES, RecordingWriter, event_time, open_recording
 
 log = logging.getLogger("bintrack")
@@ -46,10 +46,11 @@ UPSTREAM = ("sensor_agent", "peer_agent", "basestation", "merge")
 # carry their seq, and remembering them per sensor would cost memory that grows for long)
 RESULTS = frozenset({"estimate", "fusion_reports", "tracks", "laser_objects", "motion_velocity", "region_reports",
                      "region_tracks"})
-FLUSH_INTERVAL, FLUSH_TICKS = 5.0, 64  # s of wall clock or clock ticks between two flushes of the file
+FLUSH_INTERVAL, FLUSH_SPAN = 5.0, 32.0  # s of wall clock or of event time between two flushes of the file
 CHUNK_SIZE = 1024 * 1024  # bytes: few chunks, so that the chunk index kept in memory stays small
 DEDUPE_AFTER_RETURN = 1024  # result messages checked for duplicates after a service came back
 RECENT_PER_KEY = 64  # payloads remembered per key of RESULTS, to record a message sent again only once
+PARSED_KEYS = 65536  # distinct keys whose parse is remembered (a bound against key floods)
 WAIT_LOG_INTERVAL = 5.0  # s of wall clock between "still waiting" lines
 
 
@@ -110,10 +111,11 @@ class Recorder(Service):
         self.last_t = 0.0
         self.last_tracks = float("-inf")  # event time of the newest track set recorded
         self.recent: dict[str, deque[bytes]] = {}
+        self.parsed: dict[str, tuple] = {}  # key → (its ParsedKey, its message type)
         self.gone: set[str] = set()  # alive/ keys of services that went away
         self.dedupe_left = 0  # result messages still checked for duplicates after a return
         self.gap_from: float | None = None  # after a restart: event time up to which the file was kept
-        self.flushed_at, self.unflushed_ticks = time.monotonic(), 0
+        self.flushed_at, self.flushed_t = time.monotonic(), None
         self.part_start: float | None = None  # event time of the first tick of the current file
         self._changed = asyncio.Event()
 
@@ -198,18 +200,26 @@ class Recorder(Service):
         if self.writer is None or self.writer.closed:
             return
         key = str(sample.key_expr)
-        try:
-            parsed = parse_key(key)
-            cls = KIND_TYPES[parsed.kind]
-        except (ValueError, KeyError):
-            self.bad.report(key, "unknown key: not a key of a bintrack message")
-            return
+        known = self.parsed.get(key)
+        if known is None:
+            try:
+                parsed = parse_key(key)
+                known = (parsed, KIND_TYPES[parsed.kind])
+            except (ValueError, KeyError):
+                self.bad.report(key, "unknown key: not a key of a bintrack message")
+                return
+            if len(self.parsed) >= PARSED_KEYS:
+                self.parsed.clear()
+            self.parsed[key] = known
+        parsed, cls = known
         if parsed.kind in ("progress", "region_progress"):
             return
-        message = self.decode(cls, sample)
-        if message is None:
-            return
         payload = sample.payload.to_bytes()
+        try:
+            message = decode_view(cls, payload)
+        except MessageError as exc:
+            self.bad.report(key, exc.reason)
+            return
         recent = self.recent.setdefault(key, deque(maxlen=RECENT_PER_KEY)) if parsed.kind in RESULTS else None
         if recent is not None and self.dedupe_left > 0:
             # an upstream service came back (restart, router): what it sends again is recorded
@@ -239,14 +249,15 @@ class Recorder(Service):
             self.last_tracks = max(self.last_tracks, t)
         elif parsed.kind == "clock":
             # each flush closes an MCAP chunk (its index, an entry per channel, stays in memory
-            # until the file is finalised), so not at every tick: every FLUSH_INTERVAL s or
-            # FLUSH_TICKS ticks. What a kill loses since is fetched back for the track sets
-            # (tracks?after=T); the other messages of that span are missing from the file.
+            # until the file is finalised), so not at every tick: every FLUSH_INTERVAL s of
+            # wall clock or FLUSH_SPAN s of event time. What a kill loses since is fetched back
+            # for the track sets (tracks?after=T); the other messages of that span are missing.
             now = time.monotonic()
-            self.unflushed_ticks += 1
-            if now - self.flushed_at >= FLUSH_INTERVAL or self.unflushed_ticks >= FLUSH_TICKS:
+            if self.flushed_t is None:
+                self.flushed_t = t
+            if now - self.flushed_at >= FLUSH_INTERVAL or t - self.flushed_t >= FLUSH_SPAN:
                 self.writer.flush()
-                self.flushed_at, self.unflushed_ticks = now, 0
+                self.flushed_at, self.flushed_t = now, t
             self.report_progress(message.t)
         elif parsed.kind == "eos":
             self.eos = message.t

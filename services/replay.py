@@ -34,13 +34,14 @@ from bintrack.live.control_guard import control_attachment
 from bintrack.errors import CommandError
 from bintrack.formats import FormatError, TruthRow, open_dataset
 from bintrack.keys import Keys, parse_key
-from bintrack.messages import Clock, EndOfStream, RawSample, TruthSample, encode
+from bintrack.messages import Clock, EndOfStream, TruthSample, encode, encode_raw_sample
 from bintrack.live.recording import Record, open_recording, replay_items, shift_payload
 from bintrack.live.replay_schedule import Consumers, End, Pacer, Publish, Tick, schedule
 
 log = logging.getLogger("bintrack")
 
 PROGRESS_INTERVAL = 5.0  # s of wall clock between progress lines
+YIELD_EVERY = 0.002  # s of wall clock between two turns given to the loop while publishing (waits give more)
 
 
 
@@ -58,9 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="event time runs X times real time; 0 = as fast as flow control allows (default: %(default)s)")
     parser.add_argument("--loop", action="store_true",
                         help="play again after the end, shifted in event time so that it keeps increasing")
-    parser.add_argument("--clock-period", type=positive_float, default=0.5, metavar="S",
+    parser.add_argument("--clock-period", type=positive_float, default=0.05, metavar="S",
                         help="event time between clock ticks, s (default: %(default)s)")
-    parser.add_argument("--max-ahead", type=int_at_least(1), default=1, metavar="N",
+    parser.add_argument("--max-ahead", type=int_at_least(1), default=16, metavar="N",
                         help="clock ticks that may be unacknowledged by the slowest service (default: %(default)s)")
     parser.add_argument("--wait-for", action="append", default=[], metavar="SERVICE[,SERVICE…]",
                         help="publish nothing until each of these services holds a liveliness token (SERVICE*N: N "
@@ -110,8 +111,10 @@ class Replay(Service):
         super().__init__(args)
         self.source_prefix = Keys(self.recording.net).prefix if self.recording is not None else None
         self.wanted = list(dict.fromkeys(name.strip() for item in args.wait_for for name in item.split(",") if name.strip()))
+        self.wanted_missing = list(self.wanted)  # those of them with no live instance
         self.filters = [zenoh.KeyExpr(k) for k in args.keys]
         self._matches: dict[str, bool] = {}
+        self.raw_keys: dict[str, str] = {}  # sensor id → its raw key
         self.alive: set[tuple[str, str]] = set()
         self.consumers = Consumers()
         self.last_tick: float | None = None
@@ -125,6 +128,10 @@ class Replay(Service):
         self.pauses = 0
 
     # -- bus wiring -------------------------------------------------------------------------
+
+    def listen_key(self) -> str:
+        """Replay hears only the services' progress reports (not the traffic it causes)."""
+        return self.keys.progress()
 
     async def setup(self) -> None:
         checkpoint = self.load_checkpoint()
@@ -172,10 +179,15 @@ class Replay(Service):
         else:
             self.alive.discard(entry)
             self.consumers.vanished(entry)
+        self.wanted_missing = []
+        for wanted in self.wanted:  # NAME, or NAME*N: N live instances of it
+            name, _, count = wanted.partition("*")
+            if sum(service == name for service, _ in self.alive) < (int(count) if count.isdigit() else 1):
+                self.wanted_missing.append(wanted)
         self._changed.set()
 
     def _on_progress(self, sample: zenoh.Sample) -> None:
-        message = self.decode(Clock, sample)
+        message = self.read(Clock, sample)
         if message is not None:
             parsed = parse_key(str(sample.key_expr))
             self.consumers.reported((parsed.service, parsed.instance), message.t)
@@ -189,12 +201,14 @@ class Replay(Service):
         self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK, attachment=attachment)
 
     def _control(self) -> bytes:
-        """The attachment of this replay's clock and end of stream (see control_guard)."""
+        """The attachment of this replay's clock and end of stream (see control_guard). The step
+        it announces is the largest between two ticks a receiver may see: up to --max-ahead
+        ticks may be in flight, and lost together with the router."""
         step = self.args.clock_period
         if self.recording is not None:
             ticks = [t for t, item in replay_items(self.recording) if item is None]
             step = max([step, *(b - a for a, b in zip(ticks, ticks[1:]))])
-        return control_attachment(self.name, self.instance, step)
+        return control_attachment(self.name, self.instance, step * self.args.max_ahead)
 
     # -- the source -------------------------------------------------------------------------
 
@@ -207,7 +221,7 @@ class Replay(Service):
 
     def _pass(self) -> Iterable[tuple[float, object]]:
         if self.dataset is not None:
-            events = ((e.t, e) for e in self.dataset.events() if self._keep(self.keys.raw(e.sensor)))
+            events = ((e.t, e) for e in self.dataset.events() if not self.filters or self._keep(self.keys.raw(e.sensor)))
             if self.truth and self._keep(self.keys.truth()):
                 # truth.csv rows beside the events in event time; an event before a truth row at the same t
                 return heapq.merge(events, ((row.t, row) for row in self.truth), key=lambda item: item[0])
@@ -225,7 +239,8 @@ class Replay(Service):
             if put:
                 self._put(self.keys.truth(), encode(TruthSample(t=action.t, target=item.target, x=item.x, y=item.y)))
         else:
-            key, payload = self.keys.raw(item.sensor), encode(RawSample(t=action.t, sensor=item.sensor, value=item.value))
+            key = self.raw_keys.get(item.sensor) or self.raw_keys.setdefault(item.sensor, self.keys.raw(item.sensor))
+            payload = encode_raw_sample(action.t, item.sensor, item.value)
             if put:
                 self._put(key, payload)
             self.recent.append((-math.inf if self.last_tick is None else self.last_tick, key, payload))
@@ -256,11 +271,7 @@ class Replay(Service):
 
     def _missing(self) -> list[str]:
         """The --wait-for services with no live instance, and the router if it is lost."""
-        missing = []
-        for wanted in self.wanted:  # NAME, or NAME*N: N live instances of it
-            name, _, count = wanted.partition("*")
-            if sum(service == name for service, _ in self.alive) < (int(count) if count.isdigit() else 1):
-                missing.append(wanted)
+        missing = self.wanted_missing
         return missing + ["the router"] if self.router_lost_at is not None else missing
 
     async def _hold_while_missing(self, t: float) -> bool:
@@ -339,14 +350,15 @@ class Replay(Service):
     async def _play(self) -> None:
         self.pacer = pacer = Pacer(self.args.speed)
         control = self._control()
-        started = last_said = time.monotonic()
+        started = last_said = yielded_at = time.monotonic()
         skip_ack = False
         if self.resume_after is not None:  # a restart: what the previous instance published is done
             log.info("replay: restarted; resuming after the tick at t=%g s (%d samples were published)",
                      self.resume_after, self.published)
             self.resume_after, skip_ack = None, True
         for action in self.plan:
-            if not await self._ready_for(action, skip_ack):
+            quick = isinstance(action, Publish) and not self.wanted_missing and self.router_lost_at is None
+            if not quick and not await self._ready_for(action, skip_ack):  # (a sample owes no acknowledgement)
                 break
             if not isinstance(action, Publish):
                 skip_ack = False  # the progress owed to the previous instance went to it
@@ -367,7 +379,9 @@ class Replay(Service):
             if isinstance(action, Tick):
                 self._put(self.keys.clock(), encode(Clock(t=action.t)), control)
                 self._ticked(action.t)
-                await asyncio.sleep(0)  # let signals and progress reports in
+                if time.monotonic() - yielded_at >= YIELD_EVERY:
+                    await asyncio.sleep(0)  # let signals and progress reports in
+                    yielded_at = time.monotonic()
             else:
                 self._publish(action)
                 self.published += 1

@@ -1,9 +1,10 @@
 """Sensor agent: raw samples of its sensors → transitions (papers 000, 001).
 
 ``python -m bintrack.services.sensor_agent [--sensors ID,…] [--region NAME]`` hosts any number
-of a deployment's sensors (all by default; those placed in a region with ``--region``), each as an asyncio task with a bounded queue. A sensor
-publishes a ``Transition`` on ``sensor/<id>/transition`` only when its status changes, and
-answers its ``sensor/<id>/state`` queryable with its status, last ``seq`` and, for a query
+of a deployment's sensors (all by default; those placed in a region with ``--region``), handled
+in arrival order by the one subscriber's handler (the clock tick after a sample is acknowledged
+once the sample is handled). A sensor publishes a ``Transition`` on ``sensor/<id>/transition``
+only when its status changes, and answers its ``sensor/<id>/state`` queryable with its status, last ``seq`` and, for a query
 ``…/state?since=N``, the recent transitions after seq N so a receiver can repair a gap.
 """
 
@@ -19,35 +20,26 @@ import zenoh
 from bintrack.live.bus import Service, add_bus_arguments, log, service_main
 from bintrack.formats import Event, check_value
 from bintrack.keys import parse_key
-from bintrack.messages import Clock, EndOfStream, MessageError, RawSample, SensorState, Transition, decode, encode
+from bintrack.messages import Clock, EndOfStream, MessageError, RawSample, SensorState, Transition, decode_view, encode
 from bintrack.regions import RegionMap
 from bintrack.transition_detector import TransitionDetector
 
 HISTORY = 256  # transitions kept per sensor for gap repair …
 HISTORY_SPAN = 60.0  # … and no older than this, s of event time behind the clock (memory stays flat)
-QUEUE = 1024  # raw samples queued per sensor
+FORGET_EVERY = 1.0  # s of event time between two trims of the histories
 RETRY = 0.5  # s between asks for replay's recent samples
 
 
 class HostedSensor:
-    """One sensor's task: its samples in arrival order → transitions, and its recent history."""
+    """One sensor: its samples in arrival order → transitions, and its recent history."""
 
     def __init__(self, sensor_id: str, detector: TransitionDetector, agent: "SensorAgent"):
         self.id = sensor_id
         self.detector = detector
         self.agent = agent
-        self.queue: asyncio.Queue[RawSample] = asyncio.Queue(QUEUE)
         self.history: deque[Transition] = deque(maxlen=HISTORY)
         self.last_t = float("-inf")
         self.key = agent.keys.transition(sensor_id)
-
-    async def run(self) -> None:
-        while True:
-            sample = await self.queue.get()
-            try:
-                self.handle(sample)
-            finally:
-                self.queue.task_done()
 
     def handle(self, sample: RawSample) -> None:
         if sample.t < self.last_t:
@@ -108,16 +100,15 @@ class SensorAgent(Service):
         detector = TransitionDetector(deployment, hosted)
         self.sent = 0
         self.acked = float("-inf")  # the last clock tick acknowledged
+        self.forgotten_at = float("-inf")  # event time of the last trim of the histories
         self.hosted = {sid: HostedSensor(sid, detector, self) for sid in hosted}
         checkpoint = self.load_checkpoint()
         if checkpoint is not None and set(checkpoint["sensors"]) == set(self.hosted):
             await self._resume(checkpoint)
-        self.tasks = [asyncio.create_task(h.run(), name=f"sensor {h.id}") for h in self.hosted.values()]
-        self.control: asyncio.Queue = asyncio.Queue()
-        self.tasks.append(asyncio.create_task(self._control(), name="control"))
+        self.raw_keys = {sid: self.keys.raw(sid) for sid in self.sensors}
         self.subscribe(self.keys.raw(), self.on_raw)
-        self.subscribe(self.keys.clock(), lambda s: self._queue_control(Clock, s))
-        self.subscribe(self.keys.eos(), lambda s: self._queue_control(EndOfStream, s))
+        self.subscribe(self.keys.clock(), self.on_clock)
+        self.subscribe(self.keys.eos(), self.on_eos)
         self.serve(self.keys.state(), self.on_state)
 
     async def _resume(self, checkpoint: dict) -> None:
@@ -153,7 +144,6 @@ class SensorAgent(Service):
                 continue
             hosted = self.hosted[raw.sensor]
             if raw.t > hosted.last_t or (not newer and raw.t == hosted.last_t):
-                await hosted.queue.join()  # after what is queued already
                 hosted.handle(raw)
                 taken += 1
         return taken
@@ -164,52 +154,52 @@ class SensorAgent(Service):
             log.info("%s: %d raw samples published during the outage taken from replay", self.name, taken)
 
     def _checkpoint(self, tick: float) -> None:
+        if self.checkpoint_path() is None:
+            return
         detector = next(iter(self.hosted.values())).detector if self.hosted else None
         self.save_checkpoint({"tick": tick, "sent": self.sent, "detector": detector,
                               "sensors": {sid: h.last_t for sid, h in self.hosted.items()}})
 
     def on_raw(self, sample: zenoh.Sample) -> None:
-        raw = self.decode(RawSample, sample)
+        raw = self.read(RawSample, sample)
         if raw is None:
             return
         key = str(sample.key_expr)
-        if parse_key(key).sensor != raw.sensor:
+        expected = self.raw_keys.get(raw.sensor)
+        if expected is None:
+            if parse_key(key).sensor != raw.sensor:
+                self.bad.report(key, f"payload names sensor {raw.sensor!r}")
+            else:
+                self.bad.report(key, f"unknown sensor id {raw.sensor!r}")
+            return
+        if key != expected:
             self.bad.report(key, f"payload names sensor {raw.sensor!r}")
             return
-        sensor = self.sensors.get(raw.sensor)
-        if sensor is None:
-            self.bad.report(key, f"unknown sensor id {raw.sensor!r}")
-            return
-        problem = check_value(sensor, raw.value)
+        problem = check_value(self.sensors[raw.sensor], raw.value)
         if problem:
             self.bad.report(key, problem)
             return
         hosted = self.hosted.get(raw.sensor)
-        if hosted is None:
-            return  # another agent's sensor
-        try:
-            hosted.queue.put_nowait(raw)
-        except asyncio.QueueFull:
-            self.bad.report(key, "queue full: sample dropped")
+        if hosted is not None:  # else another agent's sensor
+            hosted.handle(raw)
 
-    def _queue_control(self, cls, sample: zenoh.Sample) -> None:
-        message = self.decode(cls, sample)
+    def on_clock(self, sample: zenoh.Sample) -> None:
+        """A clock tick is acknowledged at once: every sample before it has been handled."""
+        message = self.read(Clock, sample)
+        if message is None:
+            return
+        if message.t - self.forgotten_at >= FORGET_EVERY:
+            self.forgotten_at = message.t
+            for hosted in self.hosted.values():
+                hosted.forget_before(message.t - HISTORY_SPAN)
+        self.acked = message.t
+        self._checkpoint(message.t)
+        self.report_progress(message.t, sent=self.sent)
+
+    def on_eos(self, sample: zenoh.Sample) -> None:
+        message = self.read(EndOfStream, sample)
         if message is not None:
-            self.control.put_nowait(message)
-
-    async def _control(self) -> None:
-        """Clock ticks and EOS are acknowledged once every sensor has handled what came before."""
-        while True:
-            message = await self.control.get()
-            await asyncio.gather(*(h.queue.join() for h in self.hosted.values() if h.queue.qsize()))
-            if isinstance(message, Clock):
-                for hosted in self.hosted.values():
-                    hosted.forget_before(message.t - HISTORY_SPAN)
-                self.acked = message.t
-                self._checkpoint(message.t)
-                self.report_progress(message.t, sent=self.sent)
-            else:
-                self.report_done(message.t)
+            self.report_done(message.t)
 
     def on_state(self, query: zenoh.Query) -> None:
         """``…/state``; ``?since=N``: also the transitions after seq N; ``?source=ID;after=N``:
@@ -230,15 +220,10 @@ class SensorAgent(Service):
                 if source is None or state.missed:
                     query.reply(key, encode(state))
 
-    async def teardown(self) -> None:
-        for task in getattr(self, "tasks", []):
-            task.cancel()
-        await asyncio.gather(*getattr(self, "tasks", []), return_exceptions=True)
-
 
 def _decode(cls, payload: bytes):
     try:
-        return decode(cls, payload)
+        return decode_view(cls, payload)
     except MessageError:
         return None
 

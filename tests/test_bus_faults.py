@@ -227,7 +227,7 @@ def transition(sensor: str, seq: int, t: float, value: int) -> Transition:
 
 
 def test_peer_agent_survives_bad_transitions(zenoh_router, services, bus):
-    agent = services("peer_agent", "--tracker", TRACKER, "--net", NET, endpoint=zenoh_router)
+    agent = services("peer_agent", "--tracker", TRACKER, "--lateness", "1", "--net", NET, endpoint=zenoh_router)
     bus.wait_for("peer_agent", agent)
     garbage = twice(
         Bad("sensor/n0/transition", b"\x00garbage\xff", "not msgpack", "not msgpack"),
@@ -251,7 +251,7 @@ def test_peer_agent_survives_bad_transitions(zenoh_router, services, bus):
     bus.tick(3.0, "peer_agent", agent)  # watermark 2.0: n3's two transitions are released
     # out of order in event time: behind the watermark (lateness 1 s)
     late = [Bad("sensor/n4/transition", encode(transition("n4", 1, 1.2, 1)), "late",
-                "late: t=1.2 is behind the watermark (lateness 1.0 s)"),
+                "late: t=1.2 is behind the watermark 2 s (lateness 1.0 s)"),
             Bad("sensor/n4/transition", encode(transition("n4", 2, 1.4, 0)), "late", "late")]
     send_bad(bus, late)
     # (a) a good transition afterwards contributes to an estimate after a clock tick
@@ -271,7 +271,7 @@ def estimate(node: str, t: float, x: float, tracker: str = TRACKER) -> LocalEsti
 
 
 def test_basestation_survives_bad_estimates(zenoh_router, services, bus):
-    station = services("basestation", "--tracker", TRACKER, "--net", NET, endpoint=zenoh_router)
+    station = services("basestation", "--tracker", TRACKER, "--lateness", "2", "--net", NET, endpoint=zenoh_router)
     bus.wait_for("basestation", station)
     garbage = twice(
         Bad("peer/n0/estimate", b"\xc1", "not msgpack", "not msgpack"),
@@ -293,7 +293,7 @@ def test_basestation_survives_bad_estimates(zenoh_router, services, bus):
     send_bad(bus, duplicate)
     bus.tick(4.0, "basestation", station)  # watermark 2.0 (lateness 2 s)
     late = twice(Bad("peer/n1/estimate", encode(estimate("n1", 0.5, 1.0)), "late",
-                     "late: t=0.5 is behind the watermark (lateness 2.0 s)"))
+                     "late: t=0.5 is behind the watermark 2 s (lateness 2.0 s)"))
     send_bad(bus, late)
     bus.put("peer/n1/estimate", estimate("n1", 5.0, 1.5))  # (a) a good one afterwards
     bus.tick(8.0, "basestation", station)

@@ -105,6 +105,7 @@ def test_a_replay_clock_that_jumps_too_far_is_rejected(zenoh_router, services):
             entity.undeclare()
         session.close()
         agent.stop()
-    assert progress == [0.0, 0.5, 1.0]
+    # progress reports may join ticks (every 8 ticks or 5 ms): never the jump, and 1.0 last
+    assert progress[0] == 0.0 and progress[-1] == 1.0 and set(progress) <= {0.0, 0.5, 1.0}, progress
     assert "clock jump: t=1000 s after t=0.5 s, more than 4 steps of 0.5 s" in agent.log
     assert msgpack.unpackb(control_attachment("replay", "t1", 0.5)) == {"sender": "replay/t1", "step": 0.5}

@@ -80,3 +80,39 @@ def test_schema_command_prints_json_schema_of_every_message(capsys):
     transition = schema["messages"]["Transition"]
     assert set(transition["required"]) >= {"t", "sensor", "value", "previous", "seq"}
     assert "s" in transition["properties"]["t"]["description"]
+
+
+def test_the_hot_path_views_have_the_models_fields_and_refuse_what_they_refuse():
+    """The msgspec views of the hot messages (decode_view) mirror the pydantic models, which
+    stay the definition: same fields and defaults; a bad payload gets pydantic's reason."""
+    import math
+
+    import msgpack
+    import msgspec
+
+    from bintrack.messages import VIEWS, Clock, MessageError, RawSample, Transition, decode_view, encode
+
+    for cls, view in VIEWS.items():
+        fields = {f.name: f.default for f in msgspec.structs.fields(view)}
+        assert set(fields) == set(cls.model_fields), cls
+        for name, info in cls.model_fields.items():
+            if not info.is_required():
+                assert fields[name] == info.default, (cls, name)
+    tr = Transition(t=1.5, sensor="a", value=1, previous=0, seq=3, source="x", source_seq=4)
+    assert msgspec.structs.asdict(decode_view(Transition, encode(tr))) == tr.model_dump()
+    assert decode_view(Clock, encode(Clock(t=2.0, sent=5))).sent == 5
+    for payload, reason in ((msgpack.packb({"t": math.nan, "sensor": "a", "value": 1}), "t: Input should be a finite number"),
+                            (msgpack.packb({"temperature": 21.5}), "t: Field required"),
+                            (msgpack.packb({"t": 1.0, "sensor": "a", "value": 1, "x": 2}), "x: Extra inputs are not permitted"),
+                            (b"\xc1", "not msgpack")):
+        with pytest.raises(MessageError, match=reason):
+            decode_view(RawSample, payload)
+    with pytest.raises(MessageError, match="seq: Input should be greater than or equal to 1"):
+        decode_view(Transition, msgpack.packb({**tr.model_dump(), "seq": 0}))
+
+
+def test_a_raw_sample_encoded_without_its_model_has_the_models_bytes():
+    from bintrack.messages import RawSample, encode, encode_raw_sample
+
+    for t, sensor, value in ((1, "a", 1), (2.5, "n17", -1), (0.0, "s", 0)):
+        assert encode_raw_sample(t, sensor, value) == encode(RawSample(t=t, sensor=sensor, value=value))

@@ -149,7 +149,8 @@ def test_dataset_into_recorder(tmp_path, zenoh_router, services):
     data = tiny_dataset(tmp_path / "tiny")
     out = tmp_path / "run.mcap"
     recorder = services("recorder", "--out", str(out), "--net", "tiny", endpoint=zenoh_router)
-    replay = services("replay", str(data), "--speed", "0", "--wait-for", "recorder", endpoint=zenoh_router)
+    replay = services("replay", str(data), "--speed", "0", "--clock-period", "0.5", "--wait-for", "recorder",
+                      endpoint=zenoh_router)
     assert replay.wait(HUNG) == 0, output(replay)
     assert recorder.wait(HUNG) == 0, output(recorder)
 
@@ -202,7 +203,7 @@ def test_loop_keeps_event_time_increasing(tmp_path, zenoh_router, services):
                                    "-e", zenoh_router], stdout=sink, stderr=subprocess.STDOUT, cwd=REPO)
     try:
         replay = subprocess.Popen([sys.executable, "-m", "bintrack.cli", "replay", str(data), "--speed", "4", "--loop",
-                                   "--wait-for", "recorder", "-e", zenoh_router], cwd=REPO)
+                                   "--clock-period", "0.5", "--wait-for", "recorder", "-e", zenoh_router], cwd=REPO)
         try:
             wait_until(lambda: log.read_text().count("end of stream at") >= 2, what="two passes")
             replay.send_signal(signal.SIGINT)
@@ -232,7 +233,8 @@ def test_replay_waits_for_each_consumer_to_acknowledge(tmp_path, zenoh_router, s
     subscriber = session.declare_subscriber("bintrack/tiny/clock", lambda s: ticks.append(decode(Clock, s.payload.to_bytes()).t))
     token = session.liveliness().declare_token("bintrack/tiny/alive/slow/1")
     try:
-        replay = services("replay", str(data), "--speed", "0", "--wait-for", "slow", endpoint=zenoh_router)
+        replay = services("replay", str(data), "--speed", "0", "--clock-period", "0.5", "--max-ahead", "1",
+                          "--wait-for", "slow", endpoint=zenoh_router)
         wait_until(lambda: ticks == [0.0], what="the first tick")
         time.sleep(0.5)
         assert ticks == [0.0], "replay ran ahead of an unacknowledged tick"

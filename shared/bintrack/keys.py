@@ -6,6 +6,7 @@ Every key is ``bintrack/<net>/<suffix>``; ``<net>`` is the deployment name.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 from bintrack.messages import check_sensor_id
 
@@ -160,7 +161,12 @@ _PER_REGION = {"fusion/reports": "region_reports", "tracks": "region_tracks", "p
 
 def parse_key(key: str) -> ParsedKey:
     """Parse a concrete bintrack key; raises ValueError for anything else."""
-    parts = str(key).split("/")
+    return _parse_key(str(key))
+
+
+@lru_cache(maxsize=65536)  # a network has few keys; parsed once each (a bound against key floods)
+def _parse_key(key: str) -> ParsedKey:
+    parts = key.split("/")
     if len(parts) < 3 or parts[0] != ROOT or not parts[1]:
         raise ValueError(f"not a bintrack key: {key!r}")
     net, rest = parts[1], parts[2:]

@@ -2,13 +2,13 @@
 asyncio, and the runtime every service shares (liveliness, bad payloads, progress, shutdown).
 
 Zenoh callbacks run on Zenoh's threads; they must neither block nor call the Zenoh API
-(DESIGN §3). A service subscribes once, to its whole network, so that each publisher's
-messages reach it in the order they were sent (see :meth:`Service.subscribe`), and the
-callback hands each sample to the service's asyncio loop with
-``loop.call_soon_threadsafe`` through an :class:`Inbox` that holds at most ``capacity``
-samples in flight: past that, a sample is dropped and counted instead of queued without
-bound. A dropped transition shows as a ``seq`` gap, which the receiver repairs from the
-sensor's ``state`` queryable.
+(DESIGN §3). A service has one subscriber where cross-key order matters — by default on its
+whole network (see :meth:`Service.subscribe`) — and hears only other sessions' samples
+(``allowed_origin=REMOTE``: never its own puts). The callback hands samples to the
+service's asyncio loop in batches (one ``loop.call_soon_threadsafe`` per wake-up) through an
+:class:`Inbox` that holds at most ``capacity`` samples: past that, a sample is dropped and
+counted instead of queued without bound. A dropped transition shows as a ``seq`` gap, which
+the receiver repairs from the sensor's ``state`` queryable.
 
 Flow control (keys beyond DESIGN §3, under ``control/``): after each clock tick a service has
 processed it publishes ``control/progress/<service>/<id>`` (a ``Clock``); at end of stream,
@@ -22,12 +22,13 @@ import argparse
 import asyncio
 import json
 import logging
+import math
 import os
 import signal
 import socket
 import threading
 import time
-from collections import defaultdict
+from collections import defaultdict, deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -38,7 +39,7 @@ from bintrack.errors import CommandError
 from bintrack.keys import Keys, parse_key
 from bintrack.live import checkpoint
 from bintrack.live.control_guard import guard_control
-from bintrack.messages import Clock, EndOfStream, Message, MessageError, decode, encode
+from bintrack.messages import Clock, EndOfStream, Message, MessageError, decode, decode_view, encode
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_INBOX = 65536
@@ -46,6 +47,10 @@ DEFAULT_MAX_PAYLOAD = 64 * 1024  # bytes; no bintrack message comes near it
 MAX_SENDERS_LOGGED = 1024  # distinct senders of bad payloads named in the log; past that only counted
 PARENT_ENV = "BINTRACK_PARENT_PID"  # set by a supervisor (bintrack up): the service ends when that process does
 STATE_DIR_OPTION = "--state-dir"
+ACK_TICKS = 8  # progress reports pending at most (replay's --max-ahead must be at least this to never wait) …
+ACK_WAIT = 0.005  # … or s of wall clock since the last report, whichever comes first
+ROUTE_CACHE = 65536  # distinct keys whose handlers are remembered (a bound against key floods)
+GUARDED_KINDS = frozenset({"clock", "eos", "progress", "done"})  # what the control guard checks
 PARENT_CHECK = 1.0  # s between checks that the supervisor is still there
 
 log = logging.getLogger("bintrack")
@@ -157,13 +162,19 @@ def open_session(config: zenoh.Config, wait: float = 60.0, who: str = "bintrack"
 
 
 class Inbox:
-    """Bounded, non-blocking bridge from Zenoh callbacks to one asyncio handler, in arrival order.
+    """Bounded, non-blocking bridge from Zenoh callbacks to asyncio handlers, in arrival order.
 
-    At most ``capacity`` items are in flight; past that an item is dropped and counted in
-    ``dropped``. A sample whose payload is larger than ``max_payload`` bytes is refused on the
-    Zenoh thread, before it is copied or decoded, and counted in ``oversized``; ``on_oversized(key,
-    size)`` is then called on the loop. Never blocks a Zenoh thread.
+    Zenoh threads append (handler, item) to one deque; the first item after the loop last
+    drained it schedules one wake-up (``loop.call_soon_threadsafe``), which hands up to
+    ``DRAIN_BATCH`` items to their handlers and reschedules itself while more wait: one
+    wake-up per batch, not per sample. At most ``capacity`` items wait; past that an item
+    is dropped and counted in ``dropped``. A sample whose payload is larger than
+    ``max_payload`` bytes is refused on the Zenoh thread, before it is copied or decoded,
+    and counted in ``oversized``; ``on_oversized(key, size)`` is then called on the loop.
+    Never blocks a Zenoh thread.
     """
+
+    DRAIN_BATCH = 4096  # items handled per wake-up before the loop gets a turn
 
     def __init__(self, loop: asyncio.AbstractEventLoop, capacity: int = DEFAULT_INBOX,
                  max_payload: int = DEFAULT_MAX_PAYLOAD, on_oversized: Callable[[str, int], None] | None = None):
@@ -173,22 +184,19 @@ class Inbox:
         self.on_oversized = on_oversized
         self.dropped = 0
         self.oversized = 0
-        self._in_flight = 0
-        self._lock = threading.Lock()
+        self.wakeups = 0
+        self._items: deque[tuple[Callable[[Any], None], Any]] = deque()
+        self._scheduled = False
+        self._lock = threading.Lock()  # for the counters only; the deque is thread-safe
         self._closed = False
 
     def callback(self, handler: Callable[[Any], None]) -> Callable[[Any], None]:
         """A Zenoh callback that delivers each item to ``handler`` on the asyncio loop."""
-
-        def deliver(item):
-            with self._lock:
-                self._in_flight -= 1
-            if not self._closed:
-                handler(item)
+        items, limit = self._items, self.max_payload
 
         def on_zenoh_thread(item):
             payload = getattr(item, "payload", None)
-            if payload is not None and len(payload) > self.max_payload:
+            if payload is not None and len(payload) > limit:
                 with self._lock:
                     self.oversized += 1
                 if self.on_oversized is not None and not self._closed:
@@ -197,18 +205,39 @@ class Inbox:
                     except RuntimeError:
                         pass
                 return
-            with self._lock:
-                if self._closed or self._in_flight >= self.capacity:
-                    self.dropped += not self._closed
-                    return
-                self._in_flight += 1
-            try:
-                self.loop.call_soon_threadsafe(deliver, item)
-            except RuntimeError:  # loop closed during shutdown
+            if self._closed:
+                return
+            if len(items) >= self.capacity:
                 with self._lock:
-                    self._in_flight -= 1
+                    self.dropped += 1
+                return
+            items.append((handler, item))
+            if not self._scheduled:
+                self._scheduled = True
+                try:
+                    self.loop.call_soon_threadsafe(self._drain)
+                except RuntimeError:  # loop closed during shutdown
+                    pass
 
         return on_zenoh_thread
+
+    def _drain(self) -> None:
+        # Reset first: an item appended from here on schedules another wake-up (never one lost).
+        self._scheduled = False
+        self.wakeups += 1
+        items = self._items
+        for _ in range(min(len(items), self.DRAIN_BATCH)):
+            if self._closed:
+                items.clear()
+                return
+            handler, item = items.popleft()
+            try:
+                handler(item)
+            except Exception as exc:  # one bad handler call must not lose the rest of the batch
+                self.loop.call_exception_handler({"message": f"Exception in handler {handler!r}", "exception": exc})
+        if items and not self._scheduled:
+            self._scheduled = True
+            self.loop.call_soon(self._drain)
 
     def close(self) -> None:
         self._closed = True
@@ -263,8 +292,13 @@ class Service:
         self._stop_thread = threading.Event()
         self._declared: list[Any] = []
         self._routes: list[tuple[zenoh.KeyExpr, Callable[[zenoh.Sample], None]]] = []
+        self._route_cache: dict[str, tuple[bool, tuple[Callable[[zenoh.Sample], None], ...]]] = {}
         self._network_subscriber = None
         self._token = None
+        self._progress: Clock | None = None  # a progress report not sent yet
+        self._unreported = 0
+        self._reported_at = -math.inf
+        self._progress_timer: asyncio.TimerHandle | None = None
         self.exit_status = 0
         self.routers: set[str] = set()  # the routers this session is connected to
         self.router_lost_at: float | None = None  # monotonic time the last router went, while none is back
@@ -289,30 +323,57 @@ class Service:
 
     # -- helpers ---------------------------------------------------------------------------
 
+    def listen_key(self) -> str:
+        """The key expression of this service's one subscriber: everything its handlers need,
+        in one subscriber so that each publisher's samples arrive in the order sent."""
+        return self.keys.all()
+
     def subscribe(self, key_expr: str, handler: Callable[[zenoh.Sample], None]) -> None:
         """Call ``handler`` on the asyncio loop for every sample whose key ``key_expr`` includes.
 
-        A service has one Zenoh subscriber, on its whole network (``bintrack/<net>/**``), and
-        routes samples to handlers itself: Zenoh delivers one subscriber's samples in the order
-        each publisher sent them, but calls different subscribers from different threads, so
-        separate subscribers could see a publisher's messages on two keys swapped.
+        A service has one Zenoh subscriber, on :meth:`listen_key` (its whole network unless a
+        subclass narrows it), and routes samples to handlers itself: Zenoh delivers one
+        subscriber's samples in the order each publisher sent them, but calls different
+        subscribers from different threads, so separate subscribers could see a publisher's
+        messages on two keys swapped. It hears other sessions only (its own puts are not
+        delivered back to it).
         """
         assert self.session is not None and self.inbox is not None
         pattern = zenoh.KeyExpr(key_expr)
-        if not zenoh.KeyExpr(self.keys.all()).includes(pattern):
-            raise ValueError(f"{key_expr} is outside this service's network {self.keys.all()}")
+        if not zenoh.KeyExpr(self.listen_key()).includes(pattern):
+            raise ValueError(f"{key_expr} is outside this service's subscription {self.listen_key()}")
         self._routes.append((pattern, handler))
+        self._route_cache.clear()
         if self._network_subscriber is None:
             self.guard = guard_control(self)
-            self._network_subscriber = self.session.declare_subscriber(self.keys.all(), self.inbox.callback(self._route))
+            self._network_subscriber = self.session.declare_subscriber(
+                self.listen_key(), self.inbox.callback(self._route), allowed_origin=zenoh.Locality.REMOTE)
             self._declared.append(self._network_subscriber)
 
     def _route(self, sample: zenoh.Sample) -> None:
-        if not self.guard.admit(sample):  # clock and control/* only from their token holders
+        key = str(sample.key_expr)
+        entry = self._route_cache.get(key)
+        if entry is None:
+            entry = self._route_entry(key)
+        guarded, handlers = entry
+        if guarded and not self.guard.admit(sample):  # clock and control/* only from their token holders
             return
-        for pattern, handler in self._routes:
-            if pattern.includes(sample.key_expr):
-                handler(sample)
+        for handler in handlers:
+            handler(sample)
+
+    def _route_entry(self, key: str) -> tuple[bool, tuple[Callable[[zenoh.Sample], None], ...]]:
+        """(whether the control guard must see it, the handlers) of a concrete key, kept per
+        key (the keys of a network are few: no key-expression matching per sample)."""
+        expr = zenoh.KeyExpr(key)
+        handlers = tuple(handler for pattern, handler in self._routes if pattern.includes(expr))
+        try:
+            guarded = parse_key(key).kind in GUARDED_KINDS
+        except ValueError:
+            guarded = False
+        if len(self._route_cache) >= ROUTE_CACHE:
+            self._route_cache.clear()
+        entry = self._route_cache[key] = (guarded, handlers)
+        return entry
 
     def serve(self, key_expr: str, handler: Callable[[zenoh.Query], None]) -> None:
         """A queryable whose queries are answered on the asyncio loop; each query is dropped
@@ -333,17 +394,45 @@ class Service:
 
     def decode(self, cls: type, sample: zenoh.Sample):
         """The message in ``sample``, or None (counted and logged once per sender) if bad."""
-        sender = str(sample.key_expr)
         try:
             return decode(cls, sample.payload.to_bytes())
         except MessageError as exc:
-            self.bad.report(sender, exc.reason)
+            self.bad.report(str(sample.key_expr), exc.reason)
             return None
 
-    def report_progress(self, t: float, sent: int | None = None) -> None:
-        self.publish(self.keys.progress(self.name, self.instance), Clock(t=t, sent=sent))
+    def read(self, cls: type, sample: zenoh.Sample):
+        """As :meth:`decode`, but a hot message (RawSample, Transition, Clock, EndOfStream) comes
+        as a read-only view with the same fields (:func:`bintrack.messages.decode_view`)."""
+        try:
+            return decode_view(cls, sample.payload.to_bytes())
+        except MessageError as exc:
+            self.bad.report(str(sample.key_expr), exc.reason)
+            return None
+
+    def report_progress(self, t: float, sent: int | None = None, released: float | None = None) -> None:
+        """Report the clock tick ``t`` (s) handled (and, for a sensor agent, the transitions
+        ``sent``; for a tracker service, the watermark ``released``, s). Sent at once if
+        ACK_WAIT s passed since the last report or ACK_TICKS reports are pending, else within
+        ACK_WAIT s (the newest one): a report per tick at real time, one per few ticks when
+        replay runs as fast as it can, and never a tick left unacknowledged."""
+        self._progress = Clock(t=t, sent=sent, released=released)
+        self._unreported += 1
+        if self._unreported >= ACK_TICKS or time.monotonic() - self._reported_at >= ACK_WAIT:
+            self.flush_progress()
+        elif self._progress_timer is None:
+            self._progress_timer = self.loop.call_later(ACK_WAIT, self.flush_progress)
+
+    def flush_progress(self) -> None:
+        """Publish the pending progress report, if any."""
+        if self._progress_timer is not None:
+            self._progress_timer.cancel()
+            self._progress_timer = None
+        if self._progress is not None and not self.session.is_closed():
+            self.publish(self.keys.progress(self.name, self.instance), self._progress)
+        self._progress, self._unreported, self._reported_at = None, 0, time.monotonic()
 
     def report_done(self, t: float) -> None:
+        self.flush_progress()  # the last progress goes before done
         self.publish(self.keys.done(self.name, self.instance), EndOfStream(t=t))
 
     def stop(self) -> None:

@@ -20,12 +20,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import msgpack
 import zenoh
 
 from bintrack.keys import Keys, parse_key
-from bintrack.messages import Clock, MessageError, decode
+from bintrack.messages import Clock, MessageError, decode_view
 
 MAX_STEPS = 4.0  # a tick may be this many announced steps past the last one admitted
 REPLAY = "replay"
@@ -44,8 +45,13 @@ def claimed_sender(sample: zenoh.Sample) -> tuple[str | None, float | None]:
     """(``<service>/<instance>``, step s) that the sample's attachment claims; (None, None) if none."""
     if sample.attachment is None:
         return None, None
+    return _claimed(sample.attachment.to_bytes())
+
+
+@lru_cache(maxsize=256)  # a replay sends the same attachment with every tick
+def _claimed(attachment: bytes) -> tuple[str | None, float | None]:
     try:
-        body = msgpack.unpackb(sample.attachment.to_bytes())
+        body = msgpack.unpackb(attachment)
         sender, step = body.get("sender"), body.get("step")
     except (ValueError, AttributeError, msgpack.UnpackException):
         return None, None
@@ -127,7 +133,7 @@ class ControlGuard:
         if kind == "eos":
             return True
         try:
-            t = decode(Clock, sample.payload.to_bytes()).t
+            t = decode_view(Clock, sample.payload.to_bytes()).t
         except MessageError:
             return True  # the handler reports the bad payload itself
         bound = self.steps.setdefault(sender, step) if step is not None else self.steps.get(sender)

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import math
+
 from bintrack.messages import Transition
 
 
@@ -65,3 +67,55 @@ class SourceCheck:
         """The lowest ``source_seq`` ≤ ``sent`` not received from ``source``, or None."""
         n = self._contiguous.get(source, 0)
         return n + 1 if n < sent else None
+
+
+class UpstreamWatermark:
+    """The event time before which every upstream service instance has published all it will
+    (an adaptive watermark, DESIGN §5), from their progress reports.
+
+    A sensor agent reports progress ``t`` after a clock tick once every sample before it is
+    handled, so all its transitions with event time < ``t`` are out (and arrived, in publisher
+    order, before the report; lost ones are fetched when the report comes). A tracker service
+    reports what it has released. ``bound(tick)`` is the least report of the live instances of
+    ``services`` (−inf for one that has not reported yet); an instance whose token went keeps
+    its last report as a floor until it is back (a restart under the same id) or the clock
+    passed it by ``hold`` s (it is gone for good), so that what it sends after a restart is not
+    late. With no live upstream instance it is +inf (the clock alone bounds).
+    """
+
+    def __init__(self, services, hold: float):
+        self.services = frozenset(services)
+        self.hold = hold
+        self.alive: set[tuple[str, str]] = set()
+        self.progress: dict[tuple[str, str], float] = {}
+        self.departed: set[tuple[str, str]] = set()
+
+    def on_liveliness(self, service: str, instance: str, present: bool) -> None:
+        entry = (service, instance)
+        if service not in self.services:
+            return
+        if present:
+            self.alive.add(entry)
+            self.departed.discard(entry)
+        elif entry in self.alive:
+            self.alive.discard(entry)
+            if entry in self.progress:
+                self.departed.add(entry)
+
+    def reported(self, service: str, instance: str, t: float) -> None:
+        entry = (service, instance)
+        self.progress[entry] = max(t, self.progress.get(entry, -math.inf))
+
+    def bound(self, tick: float) -> float:
+        """The watermark (s) the upstream allows when the latest clock tick is ``tick`` (s)."""
+        least = math.inf
+        for entry in self.alive:
+            least = min(least, self.progress.get(entry, -math.inf))
+        for entry in list(self.departed):
+            floor = self.progress[entry]
+            if tick >= floor + self.hold:
+                self.departed.discard(entry)
+                del self.progress[entry]
+            else:
+                least = min(least, floor)
+        return least

@@ -3,8 +3,9 @@ base station's own trackers).
 
 It hears ``sensor/*/transition``, repairs ``seq`` gaps from the sensors' ``state`` queryables
 (and transitions a sensor agent says it sent that never arrived), follows restarted sensor
-agents, and feeds a :class:`~bintrack.pipeline.TrackerDriver` whose watermark is the clock tick
-minus ``--lateness``; a subclass publishes what the tracker returns (``emit``).
+agents, and feeds a :class:`~bintrack.pipeline.TrackerDriver` whose watermark is the least of
+the clock tick minus ``--lateness`` and the upstream services' reported progress (an adaptive
+watermark: exact with no fixed hold); a subclass publishes what the tracker returns (``emit``).
 """
 
 from __future__ import annotations
@@ -19,10 +20,12 @@ from bintrack.keys import parse_key
 from bintrack.messages import Clock, Deployment, Message, MessageError, SensorState, Transition, decode
 from bintrack.pipeline import TrackerDriver
 from bintrack.trackers import Tracker
-from bintrack.live.sequence_checks import SequenceCheck, SourceCheck
+from bintrack.live.sequence_checks import SequenceCheck, SourceCheck, UpstreamWatermark
 
 CHECKPOINT_INTERVAL = 1.0  # s of wall clock between two checkpoints …
 CHECKPOINT_TICKS = 16  # … or clock ticks, whichever comes first
+DEPARTED_HOLD = 2.0  # s of event time an upstream instance that went away still holds the watermark
+RELEASED_NONE = -1.7976931348623157e308  # a progress report's "released nothing yet" (finite: inf is no JSON)
 
 
 class TransitionConsumer(Service):
@@ -57,10 +60,68 @@ class TransitionConsumer(Service):
             else:
                 log.info("%s: resumed at the clock tick t=%g s; %d transitions sent since fetched from the sensors' "
                          "state", self.name, tick, self.fetch_since_received())
+        self.transition_keys = {sensor: self.keys.transition(sensor) for sensor in self.network_sensors}
         self.subscribe(self.keys.transition(), self.on_transition)
         self.subscribe(self.keys.progress("sensor_agent"), self.on_agent_progress)
         self.subscribe(self.keys.clock(), self.on_clock)
+        self.follow_upstream(upstream)
         self.follow_end_of_stream(upstream, self.on_finish)
+
+    def follow_upstream(self, services: tuple[str, ...]) -> None:
+        """Bound the watermark by the progress of the live instances of ``services`` (their
+        liveliness tokens followed here); a peer agent's progress is read by
+        :meth:`on_upstream_progress`, a sensor agent's by :meth:`on_agent_progress`."""
+        self.upstream_mark = UpstreamWatermark(services, DEPARTED_HOLD)
+        self.last_tick = -math.inf
+        driver = getattr(self, "driver", None)  # after a restart: where the checkpoint had released to
+        self.released = driver.buffer.released_until if driver is not None else -math.inf
+
+        def on_alive(sample: zenoh.Sample) -> None:
+            try:
+                parsed = parse_key(str(sample.key_expr))
+            except ValueError:
+                return
+            if parsed.kind == "alive":
+                self.upstream_mark.on_liveliness(parsed.service, parsed.instance, sample.kind == zenoh.SampleKind.PUT)
+                self.release()
+
+        self._declared.append(self.session.liveliness().declare_subscriber(
+            self.keys.alive(), self.inbox.callback(on_alive), history=True))
+        for service in services:
+            if service != "sensor_agent":
+                self.subscribe(self.keys.progress(service), self.on_upstream_progress)
+
+    def on_upstream_progress(self, sample: zenoh.Sample) -> None:
+        report = self.read(Clock, sample)
+        if report is None:
+            return
+        parsed = parse_key(str(sample.key_expr))
+        self.upstream_mark.reported(parsed.service, parsed.instance,
+                                    report.t if report.released is None else report.released)
+        self.release()
+
+    def watermark(self) -> float:
+        """The event time (s) before which every transition has arrived."""
+        return min(self.last_tick - self.args.lateness, self.upstream_mark.bound(self.last_tick))
+
+    def release(self, report: bool = True) -> None:
+        """Advance the tracker to the watermark if it moved, publish what it gives and, with
+        ``report``, tell the services downstream (a progress report with ``released``)."""
+        watermark = self.watermark()
+        if watermark <= self.released:
+            return
+        self.released = watermark
+        self.emit(self.advance(watermark))
+        if report:
+            self.report_released()
+
+    def report_released(self) -> None:
+        """Progress: the last clock tick handled, and the watermark released to."""
+        self.report_progress(self.last_tick, released=self.released if math.isfinite(self.released) else RELEASED_NONE)
+
+    def advance(self, watermark: float) -> list[Message]:
+        """The tracker's outputs up to ``watermark`` (s)."""
+        return self.driver.advance(watermark)
 
     def emit(self, outputs: list[Message]) -> None:
         """Publish the tracker's outputs."""
@@ -94,7 +155,7 @@ class TransitionConsumer(Service):
         if transition is None:
             return
         key = str(sample.key_expr)
-        if transition.sensor not in self.network_sensors or key != self.keys.transition(transition.sensor):
+        if key != self.transition_keys.get(transition.sensor):
             self.bad.report(key, f"transition of unknown or mismatched sensor {transition.sensor!r}")
             return
         if transition.sensor not in self.sensors:
@@ -137,16 +198,20 @@ class TransitionConsumer(Service):
                         transition.seq, transition.sensor)
 
     def on_agent_progress(self, sample: zenoh.Sample) -> None:
-        """A sensor agent says how many transitions it has sent: fetch any that did not arrive."""
-        report = self.decode(Clock, sample)
-        if report is None or report.sent is None:
+        """A sensor agent says how far it has handled its samples and how many transitions it
+        has sent: fetch any that did not arrive, then move the watermark."""
+        report = self.read(Clock, sample)
+        if report is None:
             return
         source = parse_key(str(sample.key_expr)).instance
-        first = self.sources.first_missing(source, report.sent)
-        if first is not None:
-            selector = f"{self.keys.state()}?source={source};after={first - 1}"
-            if not self.fetch_missed(selector, upto=report.sent):
-                log.warning("%s: %s sent transitions that were lost and could not be fetched", self.name, source)
+        if report.sent is not None:
+            first = self.sources.first_missing(source, report.sent)
+            if first is not None:
+                selector = f"{self.keys.state()}?source={source};after={first - 1}"
+                if not self.fetch_missed(selector, upto=report.sent):
+                    log.warning("%s: %s sent transitions that were lost and could not be fetched", self.name, source)
+        self.upstream_mark.reported("sensor_agent", source, report.t)
+        self.release()
 
     def fetch_missed(self, selector: str, before: Transition | None = None, upto: int | None = None) -> bool:
         """Take the ``missed`` transitions of every state reply to ``selector``, oldest first:
@@ -184,13 +249,14 @@ class TransitionConsumer(Service):
         self.newest[transition.sensor] = max(transition.t, self.newest.get(transition.sensor, -math.inf))
         if not self.driver.push(transition):
             self.bad.report(self.keys.transition(transition.sensor),
-                            f"late: t={transition.t} is behind the watermark (lateness {self.args.lateness} s)")
+                            f"late: t={transition.t} is behind the watermark {self.released:g} s (lateness {self.args.lateness} s)")
 
     def on_clock(self, sample: zenoh.Sample) -> None:
-        tick = self.decode(Clock, sample)
+        tick = self.read(Clock, sample)
         if tick is None:
             return
-        self.emit(self.driver.advance(tick.t - self.args.lateness))
+        self.last_tick = max(self.last_tick, tick.t)
+        self.release(report=False)
         # after the outputs went out, before acknowledging: a restart resumes at this tick and
         # fetches the transitions after it from the sensors' state queryables. A tracker's state
         # can take tens of ms to save, so every CHECKPOINT_INTERVAL s of wall clock or
@@ -198,11 +264,12 @@ class TransitionConsumer(Service):
         # again are dropped as duplicates by the receivers (who remember more than that).
         now = time.monotonic()
         self.ticks_unsaved += 1
-        if now - self.checkpointed_at >= CHECKPOINT_INTERVAL or self.ticks_unsaved >= CHECKPOINT_TICKS:
+        if self.checkpoint_path() is not None and (now - self.checkpointed_at >= CHECKPOINT_INTERVAL
+                                                   or self.ticks_unsaved >= CHECKPOINT_TICKS):
             self.save_checkpoint((tick.t, self.driver, self.sequence, self.sources, self.fetched, self.newest,
                                   self.restarts, self.checkpoint_extra()))
             self.checkpointed_at, self.ticks_unsaved = now, 0
-        self.report_progress(tick.t)
+        self.report_released()
 
     def on_finish(self, t: float) -> None:
         self.emit(self.driver.finish())
