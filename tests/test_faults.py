@@ -173,7 +173,7 @@ def test_services_killed_mid_run_lose_only_what_is_logged(grid_slice, offline_ro
     fetches what it missed, so the track sets, identities included, are the offline ones at
     either speed. What a killed recorder loses (the other messages of its open chunk; track sets
     are fetched back) is logged with its span, which the recorder's flush interval bounds."""
-    from bintrack.services.recorder import FLUSH_INTERVAL, FLUSH_TICKS
+    from bintrack.services.recorder import FLUSH_INTERVAL, FLUSH_SPAN
 
     recording = tmp_path / "run.mcap"
     up = Up(str(grid_slice), "--tracker", tracker, "--speed", str(speed), "--record", str(recording),
@@ -189,7 +189,7 @@ def test_services_killed_mid_run_lose_only_what_is_logged(grid_slice, offline_ro
         gap = up.wait_for(lambda line: "recorder: recording again from t=" in line, "the recorder's loss logged")
         resumed = float(gap.split("recording again from t=")[1].split(" s")[0])
         lost_from = float(gap.split("published between t=")[1].split(" s")[0])
-        bound = FLUSH_TICKS * 0.5 if speed == 0 else min(FLUSH_TICKS * 0.5, FLUSH_INTERVAL * speed)
+        bound = FLUSH_SPAN if speed == 0 else min(FLUSH_SPAN, FLUSH_INTERVAL * speed)
         assert 0.0 <= resumed - lost_from <= bound + 2.0, gap
 
 
