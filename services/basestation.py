@@ -163,12 +163,13 @@ class Basestation(TransitionConsumer):
             elif isinstance(out, VelocityEstimate):
                 self.publish(self.keys.motion_velocity(), out)
 
-    def report_progress(self, t: float, sent: int | None = None) -> None:
-        if self.args.region is not None:  # the merge's watermark: the scans up to here are out
-            # advance(w) emitted the scans strictly before w = t − lateness
-            final = math.nextafter(t - self.args.lateness, -math.inf)
+    def report_progress(self, t: float, sent: int | None = None, released: float | None = None) -> None:
+        if self.args.region is not None and math.isfinite(self.released):
+            # the merge's watermark: advance(w) emitted the scans strictly before the watermark
+            # w released to (the tick less the lateness, held back by upstream progress)
+            final = math.nextafter(self.released, -math.inf)
             self.publish(self.keys.region_progress(self.args.region), Clock(t=final))
-        super().report_progress(t, sent)
+        super().report_progress(t, sent, released)
 
     def log_tracker_warnings(self) -> None:
         """Log each warning the tracker has raised (adaptive-basis: a frame misfit) once."""
