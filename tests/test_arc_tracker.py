@@ -180,7 +180,7 @@ def test_simulated_error_near_table_i_at_r40(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("sensing_range", [40, 80, 150])
+@pytest.mark.parametrize("sensing_range", [80, 150])  # R = 40: test_simulated_error_near_table_i_at_r40
 def test_simulated_error_against_table_i(tmp_path, sensing_range):
     errors = [error_over_r(tmp_path, float(sensing_range), seed) for seed in range(1, 6)]
     # measured over seeds 1–5: 0.057 (R=40), 0.0148 (80), 0.0047 (150); the paper's errors are
