@@ -34,9 +34,10 @@ import zenoh
 
 from bintrack.argtypes import non_negative_float, positive_float
 from bintrack.live.bus import add_bus_arguments, log, service_main
+from bintrack.live.tracks_queryable import answer_tracks_query
 from bintrack.errors import CommandError
 from bintrack.messages import (Clock, LineObjectEstimate, LocalEstimate, Message, PositionReports, Track, TrackSet,
-                               VelocityEstimate, encode)
+                               VelocityEstimate)
 from bintrack.ordering import ReorderBuffer
 from bintrack.regions import RegionMap
 from bintrack.pipeline import SINGLE_TARGET_TRACK
@@ -185,21 +186,7 @@ class Basestation(TransitionConsumer):
         self.latest = extra
 
     def on_tracks_query(self, query: zenoh.Query) -> None:
-        """The latest ``TrackSet``; ``?after=T``: each of the recent ones later than T (s), in order
-        (for a recorder that lost some)."""
-        after = query.parameters.get("after")
-        if after is None:
-            if self.latest is not None:
-                query.reply(self.tracks_key, encode(self.latest))
-            return
-        try:
-            after = float(after)
-        except ValueError:
-            query.reply_err(b"after must be a number of seconds")
-            return
-        for tracks in self.history:
-            if tracks.t > after:
-                query.reply(self.tracks_key, encode(tracks))
+        answer_tracks_query(query, self.tracks_key, self.latest, self.history)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -22,7 +22,8 @@ import zenoh
 from bintrack.argtypes import positive_float
 from bintrack.keys import parse_key
 from bintrack.live.bus import Service, add_bus_arguments, log, service_main
-from bintrack.messages import Clock, TrackSet, encode
+from bintrack.live.tracks_queryable import answer_tracks_query
+from bintrack.messages import Clock, TrackSet
 from bintrack.regions import RegionMap
 from bintrack.trackers.multi.region_merge import MergeConfig, RegionMerge
 
@@ -94,19 +95,7 @@ class Merge(Service):
             self.publish(self.keys.tracks(), tracks)
 
     def on_tracks_query(self, query: zenoh.Query) -> None:
-        after = query.parameters.get("after")
-        if after is None:
-            if self.latest is not None:
-                query.reply(self.keys.tracks(), encode(self.latest))
-            return
-        try:
-            after = float(after)
-        except ValueError:
-            query.reply_err(b"after must be a number of seconds")
-            return
-        for tracks in self.history:
-            if tracks.t > after:
-                query.reply(self.keys.tracks(), encode(tracks))
+        answer_tracks_query(query, self.keys.tracks(), self.latest, self.history)
 
 
 def build_parser() -> argparse.ArgumentParser:
