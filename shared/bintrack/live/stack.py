@@ -52,12 +52,7 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
             services.append(ServiceCommand("peer_agent", ("--tracker", estimates, *bus)))
         extra = (*tracker_args, *(("--estimates", estimates) if estimates is not None else ()))
         services.append(ServiceCommand("basestation", ("--tracker", tracker, *extra, *bus)))
-    if record is not None:
-        # a looping replay never ends: record across the loops until stopped
-        until = ("--until", "stopped") if loop and source is not None else ()
-        services.append(ServiceCommand("recorder", ("--out", record, *until, *bus)))
-    if view_port is not None:
-        services.append(ServiceCommand("view", ("--port", str(view_port), "--bind", view_bind, *bus)))
+    services += _recorder_and_view(record, loop and source is not None, view_port, view_bind, bus)
     if source is not None:
         replay = [source, "--speed", _number(speed), *(["--loop"] if loop else []),
                   "--wait-for", ",".join(s.name for s in services)]
@@ -102,15 +97,24 @@ def region_stack_commands(*, regions: list[str], endpoint: str, net: str, source
                                                        *bus), f"basestation-{region}"))
     bus = ("-e", endpoint, "--net", net)
     services.append(ServiceCommand("merge", bus))
-    if record is not None:
-        until = ("--until", "stopped") if loop and source is not None else ()
-        services.append(ServiceCommand("recorder", ("--out", record, *until, *bus)))
-    if view_port is not None:
-        services.append(ServiceCommand("view", ("--port", str(view_port), "--bind", view_bind, *bus)))
+    services += _recorder_and_view(record, loop and source is not None, view_port, view_bind, bus)
     if source is not None:
         n = len(regions)
         wanted = [f"sensor_agent*{n}", f"basestation*{n}", *(c.name for c in services if c.name not in
                                                               ("router", "sensor_agent", "basestation"))]
         replay = [source, "--speed", _number(speed), *(["--loop"] if loop else []), "--wait-for", ",".join(wanted)]
         services.append(ServiceCommand("replay", (*replay, *bus)))
+    return services
+
+
+def _recorder_and_view(record: str | None, looping: bool, view_port: int | None, view_bind: str,
+                       bus: tuple[str, ...]) -> list[ServiceCommand]:
+    """The recorder (into ``record``) and the view (on ``view_port``), those asked for."""
+    services = []
+    if record is not None:
+        # a looping replay never ends: record across the loops until stopped
+        until = ("--until", "stopped") if looping else ()
+        services.append(ServiceCommand("recorder", ("--out", record, *until, *bus)))
+    if view_port is not None:
+        services.append(ServiceCommand("view", ("--port", str(view_port), "--bind", view_bind, *bus)))
     return services
