@@ -10,15 +10,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
-from bintrack.trackers.multi.mcmcda import MCMCDAConfig
 from bintrack.messages import Deployment
-from bintrack.trackers.laser.tracker import AdaptiveBasisTracker
-from bintrack.trackers.arc.arc_tracker import ArcTracker
 from bintrack.trackers.base import Tracker
-from bintrack.trackers.arc.baselines import LineFitTracker, WeightedCentroidTracker
-from bintrack.trackers.multi.tracker import MCMCDATracker
-from bintrack.trackers.motion.tracker import MotionRandomWalkTracker, PprTracker, SvmTracker, VelocityPlaneTracker
-from bintrack.trackers.arc.sector_tracker import SectorTracker
+
+# Each factory imports its tracker's module when called: a service loads the one tracker it runs
+# (the multi-target and motion trackers pull in scipy's optimisers and sparse matrices).
 
 
 @dataclass(frozen=True)
@@ -50,7 +46,55 @@ def _window(o: TrackerOptions) -> dict:
     return {"window": o.window} if o.window is not None else {}
 
 
-def _mcmcda(d: Deployment, o: TrackerOptions) -> MCMCDATracker:
+def _weighted(weights: str) -> Callable[[Deployment, TrackerOptions], Tracker]:
+    def make(d: Deployment, o: TrackerOptions) -> Tracker:
+        from bintrack.trackers.arc.baselines import WeightedCentroidTracker
+
+        return WeightedCentroidTracker(d, weights, o.speed)
+
+    return make
+
+
+def _line_fit(d: Deployment, o: TrackerOptions) -> Tracker:
+    from bintrack.trackers.arc.baselines import LineFitTracker
+
+    return LineFitTracker(d, o.speed, o.window or LINE_FIT_WINDOW)
+
+
+def _arc(d: Deployment, o: TrackerOptions) -> Tracker:
+    from bintrack.trackers.arc.arc_tracker import ArcTracker
+
+    return ArcTracker(d)
+
+
+def _sector(d: Deployment, o: TrackerOptions) -> Tracker:
+    from bintrack.trackers.arc.sector_tracker import SectorTracker
+
+    return SectorTracker(d)
+
+
+def _adaptive_basis(d: Deployment, o: TrackerOptions) -> Tracker:
+    from bintrack.trackers.laser.tracker import AdaptiveBasisTracker
+
+    return AdaptiveBasisTracker(d, **({"phase2": o.phase2} if o.phase2 else {}))
+
+
+def _motion(kind: str) -> Callable[[Deployment, TrackerOptions], Tracker]:
+    def make(d: Deployment, o: TrackerOptions) -> Tracker:
+        from bintrack.trackers.motion import tracker as motion
+
+        if kind == "motion-rw":
+            return motion.MotionRandomWalkTracker(d, **_window(o), **({"speed": o.speed} if o.speed else {}))
+        return {"velocity-plane": motion.VelocityPlaneTracker, "svm": motion.SvmTracker,
+                "ppr": motion.PprTracker}[kind](d, **_window(o))
+
+    return make
+
+
+def _mcmcda(d: Deployment, o: TrackerOptions) -> Tracker:
+    from bintrack.trackers.multi.mcmcda import MCMCDAConfig
+    from bintrack.trackers.multi.tracker import MCMCDATracker
+
     speed = {}
     if o.speed is not None:
         fastest = o.speed * d.metres_per_unit  # MCMCDAConfig is in metres; --speed in the deployment's units
@@ -63,20 +107,17 @@ def _mcmcda(d: Deployment, o: TrackerOptions) -> MCMCDATracker:
 
 
 _PEER: dict[str, Callable[[Deployment, TrackerOptions], Tracker]] = {
-    "equal-weight": lambda d, o: WeightedCentroidTracker(d, "equal", o.speed),
-    "distance-weight": lambda d, o: WeightedCentroidTracker(d, "distance", o.speed),
-    "duration-weight": lambda d, o: WeightedCentroidTracker(d, "duration", o.speed),
-    "line-fit": lambda d, o: LineFitTracker(d, o.speed, o.window or LINE_FIT_WINDOW),
-    "arc": lambda d, o: ArcTracker(d),
-    "sector": lambda d, o: SectorTracker(d),
+    "equal-weight": _weighted("equal"),
+    "distance-weight": _weighted("distance"),
+    "duration-weight": _weighted("duration"),
+    "line-fit": _line_fit,
+    "arc": _arc,
+    "sector": _sector,
 }
 _BASE: dict[str, Callable[[Deployment, TrackerOptions], Tracker]] = {
     "mcmcda": _mcmcda,
-    "adaptive-basis": lambda d, o: AdaptiveBasisTracker(d, **({"phase2": o.phase2} if o.phase2 else {})),
-    "velocity-plane": lambda d, o: VelocityPlaneTracker(d, **_window(o)),
-    "svm": lambda d, o: SvmTracker(d, **_window(o)),
-    "ppr": lambda d, o: PprTracker(d, **_window(o)),
-    "motion-rw": lambda d, o: MotionRandomWalkTracker(d, **_window(o), **({"speed": o.speed} if o.speed else {})),
+    "adaptive-basis": _adaptive_basis,
+    **{name: _motion(name) for name in ("velocity-plane", "svm", "ppr", "motion-rw")},
 }
 
 TRACKER_NAMES = (*_PEER, *_BASE)

@@ -282,5 +282,5 @@ class ArcTracker:
         (§3.2.3); returns i's velocity estimate (units/s) with it included."""
         radius = self.net.ranges[i]
         for j in self.net.neighbours[i]:
-            self.velocity[j].observe(self.clocks[j].local(t), x, y, arc, radius)
+            self.velocity[j].hear(self.clocks[j].local(t), x, y, arc, radius)
         return self.velocity[i].observe(self.clocks[i].local(t), x, y, arc, radius)

@@ -49,11 +49,16 @@ class VelocityEstimator:
         final arc has central angle ``arc`` (rad; None = unknown, not used) on a circle of
         ``radius`` (units; its position uncertainty is then radius·arc/2). Returns the current
         velocity estimate, or None while there is none (see :meth:`velocity`)."""
+        self.hear(local_time, x, y, arc, radius)
+        return self.velocity()
+
+    def hear(self, local_time: float, x: float, y: float, arc: float | None, radius: float | None = None) -> None:
+        """Keep an estimate as :meth:`observe` does, without computing the velocity (a neighbour
+        that only listens need not fit it until it makes an estimate of its own)."""
         if arc is not None and arc <= self.max_arc:
             if not self._accurate or local_time > self._accurate[-1][0]:
                 uncertainty = 0.0 if radius is None else radius * arc / 2
                 self._accurate.append((local_time, x, y, uncertainty))
-        return self.velocity()
 
     def velocity(self) -> tuple[float, float] | None:
         """The least-squares velocity (units/s), or None with fewer than two accurate estimates
