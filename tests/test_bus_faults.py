@@ -81,6 +81,7 @@ class Bus:
                          # it plays the replay's part: clock and end of stream from a replay token's holder
                          self.session.liveliness().declare_token(self.keys.alive("replay", "test"))]
         self.control = control_attachment("replay", "test")
+        self.played: list[str] = []
         if serve_deployment:
             payload = encode(deployment)
             self.entities.append(self.session.declare_queryable(
@@ -108,12 +109,22 @@ class Bus:
         replies = self.session.liveliness().get(self.keys.alive(service), timeout=2.0)
         return [str(r.ok.key_expr) for r in replies if r.ok is not None]
 
+    def play(self, service: str) -> None:
+        """Play an upstream instance of ``service`` too (a liveliness token, and a progress
+        report at each tick): the services downstream wait for an upstream of each kind."""
+        self.entities.append(self.session.liveliness().declare_token(self.keys.alive(service, "test")))
+        self.played.append(service)
+
     def wait_for(self, service: str, proc=None, timeout: float = HUNG) -> None:
         wait_until(lambda: self.alive(service), f"{service} to come up", timeout, [proc] if proc else [])
 
     def tick(self, t: float, service: str, proc=None) -> None:
         """Publish a clock tick and wait until ``service`` reports progress to it (so it has
-        handled everything published before the tick)."""
+        handled everything published before the tick). A played upstream reports having
+        handled everything up to ``t`` first."""
+        for upstream in self.played:
+            self.session.put(self.keys.progress(upstream, "test"), encode(Clock(t=t)),
+                             attachment=control_attachment(upstream, "test"))
         self.put("clock", Clock(t=t))
         wait_until(lambda: any(parse_key(key).service == service and message.t >= t
                                for key, message in self.messages("progress")),
@@ -227,6 +238,7 @@ def transition(sensor: str, seq: int, t: float, value: int) -> Transition:
 
 
 def test_peer_agent_survives_bad_transitions(zenoh_router, services, bus):
+    bus.play("sensor_agent")
     agent = services("peer_agent", "--tracker", TRACKER, "--lateness", "1", "--net", NET, endpoint=zenoh_router)
     bus.wait_for("peer_agent", agent)
     garbage = twice(
@@ -271,6 +283,7 @@ def estimate(node: str, t: float, x: float, tracker: str = TRACKER) -> LocalEsti
 
 
 def test_basestation_survives_bad_estimates(zenoh_router, services, bus):
+    bus.play("peer_agent")
     station = services("basestation", "--tracker", TRACKER, "--lateness", "2", "--net", NET, endpoint=zenoh_router)
     bus.wait_for("basestation", station)
     garbage = twice(

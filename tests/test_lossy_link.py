@@ -20,7 +20,7 @@ from bintrack.messages import Transition, decode
 from bintrack.pipeline import output_rows, run_tracker
 from bintrack.live.recording import open_recording
 from bintrack.trackers import make_tracker
-from bintrack.live.sequence_checks import SequenceCheck, SourceCheck
+from bintrack.live.sequence_checks import SequenceCheck, SourceCheck, UpstreamWatermark
 from bintrack.transition_detector import TransitionDetector
 
 from conftest import HUNG, REPO, write_foreign_dataset
@@ -79,6 +79,46 @@ def test_source_check_contiguous_out_of_order_and_first_missing():
     check.forget("s1")
     assert not check.seen(tr("a", 1, "s1", 1)) and check.first_missing("s1", 1) == 1
     assert check.seen(tr("b", 1, "s2", 1))  # other instances are kept
+
+
+def test_a_departed_upstream_holds_the_watermark_for_the_hold_after_it_went_not_after_its_floor():
+    mark = UpstreamWatermark({"peer_agent"}, hold=2.0)
+    # before any peer agent was seen nothing is released: its token may come after the clock
+    assert mark.bound(0.0) == float("-inf")
+    mark.on_liveliness("peer_agent", "p1", True)
+    mark.on_liveliness("peer_agent", "p2", True)
+    assert mark.bound(0.5) == float("-inf")  # p1 and p2 have not reported yet
+    mark.reported("peer_agent", "p1", 8.0)
+    mark.reported("peer_agent", "p2", 16.0)
+    assert mark.bound(16.0) == 8.0
+    # p1 dies with the clock already 8 s past its report (the replay's lead at a 0.5 s period):
+    # it still holds, for 2 s counted from the first tick after it went
+    mark.on_liveliness("peer_agent", "p1", False)
+    assert mark.bound(16.0) == 8.0
+    assert mark.bound(17.5) == 8.0
+    mark.on_liveliness("peer_agent", "p1", True)  # back (a restart under the same id)
+    mark.reported("peer_agent", "p1", 9.0)
+    assert mark.bound(17.5) == 9.0
+    mark.on_liveliness("peer_agent", "p1", False)
+    assert mark.bound(18.0) == 9.0
+    assert mark.bound(20.0) == 16.0  # gone for good: p2 alone bounds
+    mark.on_liveliness("peer_agent", "other", False)  # never seen: ignored
+    mark.on_liveliness("sensor_agent", "s1", True)  # not an upstream service of this one
+    assert mark.bound(20.5) == 16.0
+    mark.on_liveliness("peer_agent", "p2", False)  # p2 goes before it reported again
+    assert mark.bound(21.0) == 16.0
+    assert mark.bound(23.0) == float("inf")  # every instance gone for good: the clock alone bounds
+
+
+def test_the_watermark_waits_for_an_instance_of_each_upstream_service():
+    mark = UpstreamWatermark({"sensor_agent", "peer_agent"}, hold=2.0)
+    mark.on_liveliness("sensor_agent", "s1", True)
+    mark.reported("sensor_agent", "s1", 5.0)
+    assert mark.bound(5.0) == float("-inf")  # no peer agent seen yet
+    mark.on_liveliness("peer_agent", "p1", True)
+    mark.on_liveliness("peer_agent", "p1", False)  # one that went before reporting holds at −inf
+    assert mark.bound(5.5) == float("-inf")
+    assert mark.bound(7.5) == 5.0
 
 
 # --------------------------------------------------------------------------- live

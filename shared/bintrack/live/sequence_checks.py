@@ -79,8 +79,14 @@ class UpstreamWatermark:
     reports what it has released. ``bound(tick)`` is the least report of the live instances of
     ``services`` (−inf for one that has not reported yet); an instance whose token went keeps
     its last report as a floor until it is back (a restart under the same id) or the clock
-    passed it by ``hold`` s (it is gone for good), so that what it sends after a restart is not
-    late. With no live upstream instance it is +inf (the clock alone bounds).
+    advanced ``hold`` s past the first tick seen after the token went (it is gone for good), so
+    that what it sends after a restart is not late. The hold counts from the departure, not from
+    the floor: the clock may already be up to the replay's lead (``--max-ahead`` clock periods)
+    past the floor when the token goes, and the replay holds event time while an awaited
+    service is gone. Until an instance of each of ``services`` has been seen it is −inf: their
+    first outputs may arrive after the first ticks, and a liveliness token comes on another path
+    than the clock, so the clock alone must not release past them. Once every instance seen has
+    gone for good it is +inf (the clock alone bounds).
     """
 
     def __init__(self, services, hold: float):
@@ -88,7 +94,9 @@ class UpstreamWatermark:
         self.hold = hold
         self.alive: set[tuple[str, str]] = set()
         self.progress: dict[tuple[str, str], float] = {}
-        self.departed: set[tuple[str, str]] = set()
+        # instance whose token went → the first tick (s) seen after it went (None: none yet)
+        self.departed: dict[tuple[str, str], float | None] = {}
+        self.unseen = set(self.services)  # services none of whose instances has been live yet
 
     def on_liveliness(self, service: str, instance: str, present: bool) -> None:
         entry = (service, instance)
@@ -96,11 +104,11 @@ class UpstreamWatermark:
             return
         if present:
             self.alive.add(entry)
-            self.departed.discard(entry)
+            self.departed.pop(entry, None)
+            self.unseen.discard(service)
         elif entry in self.alive:
             self.alive.discard(entry)
-            if entry in self.progress:
-                self.departed.add(entry)
+            self.departed[entry] = None  # its floor: its last report, −inf if it never reported
 
     def reported(self, service: str, instance: str, t: float) -> None:
         entry = (service, instance)
@@ -108,14 +116,15 @@ class UpstreamWatermark:
 
     def bound(self, tick: float) -> float:
         """The watermark (s) the upstream allows when the latest clock tick is ``tick`` (s)."""
-        least = math.inf
+        least = -math.inf if self.unseen else math.inf
         for entry in self.alive:
             least = min(least, self.progress.get(entry, -math.inf))
-        for entry in list(self.departed):
-            floor = self.progress[entry]
-            if tick >= floor + self.hold:
-                self.departed.discard(entry)
-                del self.progress[entry]
+        for entry, since in list(self.departed.items()):
+            if since is None:
+                self.departed[entry] = since = tick
+            if tick >= since + self.hold:
+                del self.departed[entry]
+                self.progress.pop(entry, None)
             else:
-                least = min(least, floor)
+                least = min(least, self.progress.get(entry, -math.inf))
         return least
