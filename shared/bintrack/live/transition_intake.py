@@ -23,7 +23,7 @@ from bintrack.trackers import Tracker
 from bintrack.live.sequence_checks import SequenceCheck, SourceCheck, UpstreamWatermark
 
 CHECKPOINT_INTERVAL = 1.0  # s of wall clock between two checkpoints …
-CHECKPOINT_TICKS = 16  # … or clock ticks, whichever comes first
+CHECKPOINT_SPAN = 8.0  # … or s of event time, whichever comes first (well inside the sensors' HISTORY_SPAN)
 DEPARTED_HOLD = 2.0  # s of event time an upstream instance that went away still holds the watermark
 RELEASED_NONE = -1.7976931348623157e308  # a progress report's "released nothing yet" (finite: inf is no JSON)
 
@@ -46,7 +46,7 @@ class TransitionConsumer(Service):
         self.newest: dict[str, float] = {}  # event time of the newest transition taken, per sensor
         self.restarts: set[str | None] = set()  # sources seen counting from 1 again (logged once)
         self.checkpointed_at = -math.inf  # monotonic time of the last checkpoint
-        self.ticks_unsaved = 0
+        self.checkpointed_tick = -math.inf  # event time (s) of the clock tick last checkpointed
         checkpoint = self.load_checkpoint()
         if checkpoint is not None:
             try:
@@ -259,16 +259,15 @@ class TransitionConsumer(Service):
         self.release(report=False)
         # after the outputs went out, before acknowledging: a restart resumes at this tick and
         # fetches the transitions after it from the sensors' state queryables. A tracker's state
-        # can take tens of ms to save, so every CHECKPOINT_INTERVAL s of wall clock or
-        # CHECKPOINT_TICKS ticks, whichever comes first; the outputs a restarted instance sends
-        # again are dropped as duplicates by the receivers (who remember more than that).
+        # can take tens of ms to save (all of a peer agent's trackers), so every CHECKPOINT_INTERVAL
+        # s of wall clock or CHECKPOINT_SPAN s of event time, whichever comes first; the outputs a
+        # restarted instance sends again are dropped as duplicates by the receivers.
         now = time.monotonic()
-        self.ticks_unsaved += 1
         if self.checkpoint_path() is not None and (now - self.checkpointed_at >= CHECKPOINT_INTERVAL
-                                                   or self.ticks_unsaved >= CHECKPOINT_TICKS):
+                                                   or tick.t - self.checkpointed_tick >= CHECKPOINT_SPAN):
             self.save_checkpoint((tick.t, self.driver, self.sequence, self.sources, self.fetched, self.newest,
                                   self.restarts, self.checkpoint_extra()))
-            self.checkpointed_at, self.ticks_unsaved = now, 0
+            self.checkpointed_at, self.checkpointed_tick = now, tick.t
         self.report_released()
 
     def on_finish(self, t: float) -> None:
