@@ -51,13 +51,13 @@ def live_and_offline(dataset: Path, tracker: str, tmp: Path, speed: str = "0",
                   "--exit-at-end", "--listen", f"tcp/127.0.0.1:{free_port()}", "--no-view")
     assert up.returncode == 0, up.stderr[-3000:]
     offline = tmp / f"{tracker}-offline.csv"
-    assert bintrack("track", str(dataset), "--tracker", tracker, *options, "--out", str(offline)).returncode == 0
+    # `track` and `export` in this process: the same commands, without a Python start each
+    assert cli.main(["track", str(dataset), "--tracker", tracker, *options, "--out", str(offline)]) == 0
     expected = read_tracks(offline)
     assert len(expected) > 20
     for what in exports:
         exported = tmp / f"{tracker}-{what}.csv"
-        result = bintrack("export", str(recording), "--what", what, "--out", str(exported))
-        assert result.returncode == 0, result.stderr
+        assert cli.main(["export", str(recording), "--what", what, "--out", str(exported)]) == 0
         assert read_tracks(exported) == expected, what
 
 
@@ -73,7 +73,9 @@ def uniform_dataset(tmp_path_factory) -> Path:
     return simulated(tmp_path_factory, "uniform-800", "--range", "60", "--trajectory", "random", "--seed", "5")
 
 
-@pytest.mark.parametrize("tracker", (*BASELINES, "arc", "sector"))
+# Every peer tracker runs live on darpa-grid-3 below; on a random deployment the two whose
+# estimates are geometry (a fitted line, intersected arcs) rather than weighted centroids.
+@pytest.mark.parametrize("tracker", ("line-fit", "arc"))
 def test_live_equals_offline_on_a_uniform_dataset(uniform_dataset, tracker, tmp_path):
     live_and_offline(uniform_dataset, tracker, tmp_path)
 
@@ -84,9 +86,8 @@ def sector_dataset(tmp_path_factory) -> Path:
                      "--seed", "5")
 
 
-@pytest.mark.parametrize("tracker", ("sector", "arc"))
-def test_live_equals_offline_on_a_sector_dataset(sector_dataset, tracker, tmp_path):
-    live_and_offline(sector_dataset, tracker, tmp_path)
+def test_live_equals_offline_on_a_sector_dataset(sector_dataset, tmp_path):
+    live_and_offline(sector_dataset, "sector", tmp_path)
 
 
 @pytest.mark.parametrize("tracker", (*BASELINES, "arc", "sector"))
