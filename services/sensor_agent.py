@@ -27,7 +27,9 @@ from bintrack.transition_detector import TransitionDetector
 HISTORY = 256  # transitions kept per sensor for gap repair …
 HISTORY_SPAN = 60.0  # … and no older than this, s of event time behind the clock (memory stays flat)
 FORGET_EVERY = 1.0  # s of event time between two trims of the histories
+RESUME_SPAN = 5.0  # s of event time of sent transitions a checkpoint keeps (those a kill may catch in flight)
 RETRY = 0.5  # s between asks for replay's recent samples
+TRANSITION_FIELDS = tuple(Transition.model_fields)
 
 
 class HostedSensor:
@@ -52,6 +54,7 @@ class HostedSensor:
         self.agent.sent += 1
         transition = transition.model_copy(update={"source": self.agent.instance, "source_seq": self.agent.sent})
         self.history.append(transition)
+        self.agent.recent.append(transition)
         if self.agent.args.lose and self.agent.sent % self.agent.args.lose == 0:
             return  # --lose: a lossy link for tests; the receivers must repair the gap
         self.agent.publish(self.key, transition)
@@ -99,6 +102,7 @@ class SensorAgent(Service):
             return
         detector = TransitionDetector(deployment, hosted)
         self.sent = 0
+        self.recent: deque[Transition] = deque()  # the transitions sent in the last RESUME_SPAN s
         self.acked = float("-inf")  # the last clock tick acknowledged
         self.forgotten_at = float("-inf")  # event time of the last trim of the histories
         self.hosted = {sid: HostedSensor(sid, detector, self) for sid in hosted}
@@ -112,12 +116,16 @@ class SensorAgent(Service):
         self.serve(self.keys.state(), self.on_state)
 
     async def _resume(self, checkpoint: dict) -> None:
-        """Take the state saved at the last clock tick acknowledged (statuses and counters; not
-        the history, so transitions sent before the restart can no longer be fetched from it),
-        then the raw samples replay published after that tick (its ``recent`` queryable): what
-        this sensor agent had when it died, and what it missed while it was down (replay holds
-        the clock meanwhile)."""
+        """Take the state saved at the last clock tick acknowledged (statuses, counters, and the
+        transitions sent in the last RESUME_SPAN s, which a receiver may still fetch: a kill
+        loses what was still in flight), then the raw samples replay published after that tick
+        (its ``recent`` queryable): what this sensor agent had when it died, and what it missed
+        while it was down (replay holds the clock meanwhile)."""
         self.sent = checkpoint["sent"]
+        for fields in checkpoint.get("recent", ()):
+            transition = Transition(**dict(zip(TRANSITION_FIELDS, fields)))
+            self.recent.append(transition)
+            self.hosted[transition.sensor].history.append(transition)
         detector = checkpoint["detector"]
         for sid, last_t in checkpoint["sensors"].items():
             hosted = self.hosted[sid]
@@ -154,10 +162,13 @@ class SensorAgent(Service):
             log.info("%s: %d raw samples published during the outage taken from replay", self.name, taken)
 
     def _checkpoint(self, tick: float) -> None:
+        while self.recent and self.recent[0].t < tick - RESUME_SPAN:
+            self.recent.popleft()
         if self.checkpoint_path() is None:
             return
         detector = next(iter(self.hosted.values())).detector if self.hosted else None
-        self.save_checkpoint({"tick": tick, "sent": self.sent, "detector": detector,
+        recent = [tuple(getattr(tr, name) for name in TRANSITION_FIELDS) for tr in self.recent]
+        self.save_checkpoint({"tick": tick, "sent": self.sent, "detector": detector, "recent": recent,
                               "sensors": {sid: h.last_t for sid, h in self.hosted.items()}})
 
     def on_raw(self, sample: zenoh.Sample) -> None:

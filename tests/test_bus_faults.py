@@ -38,6 +38,7 @@ from bintrack.messages import (
     LocalEstimate,
     RawSample,
     Region,
+    SensorState,
     TrackSet,
     Transition,
     decode,
@@ -118,12 +119,12 @@ class Bus:
     def wait_for(self, service: str, proc=None, timeout: float = HUNG) -> None:
         wait_until(lambda: self.alive(service), f"{service} to come up", timeout, [proc] if proc else [])
 
-    def tick(self, t: float, service: str, proc=None) -> None:
+    def tick(self, t: float, service: str, proc=None, sent: int | None = None) -> None:
         """Publish a clock tick and wait until ``service`` reports progress to it (so it has
         handled everything published before the tick). A played upstream reports having
-        handled everything up to ``t`` first."""
+        handled everything up to ``t`` first (a played sensor agent: having sent ``sent``)."""
         for upstream in self.played:
-            self.session.put(self.keys.progress(upstream, "test"), encode(Clock(t=t)),
+            self.session.put(self.keys.progress(upstream, "test"), encode(Clock(t=t, sent=sent)),
                              attachment=control_attachment(upstream, "test"))
         self.put("clock", Clock(t=t))
         wait_until(lambda: any(parse_key(key).service == service and message.t >= t
@@ -349,6 +350,72 @@ def test_recorder_survives_bad_payloads(tmp_path, zenoh_router, services, bus):
 
 
 # --------------------------------------------------------------------------- kill and restart
+
+
+def sent(sensor: str, seq: int, t: float, value: int, source_seq: int) -> Transition:
+    return Transition(t=t, sensor=sensor, value=value, previous=1 - value, seq=seq, source="test",
+                      source_seq=source_seq)
+
+
+def test_a_transition_lost_while_its_agent_restarts_is_fetched_at_its_next_progress_report(
+        zenoh_router, services, bus):
+    """n1's seq 2 is lost in flight (its agent killed with it unsent) and seq 3 arrives: the gap
+    cannot be repaired while the agent is down (no state reply), so seq 3 is taken; the agent's
+    next progress report (3 sent before n2's) shows the shortfall and the peer agent fetches
+    seq 2 from its state then, although a later seq of n1 was taken already. The estimates are
+    those of the transitions in event-time order."""
+    bus.play("sensor_agent")
+    agent = services("peer_agent", "--tracker", TRACKER, "--net", NET, endpoint=zenoh_router)
+    bus.wait_for("peer_agent", agent)
+    on, lost, n2_on, again = (sent("n1", 1, 1.0, 1, 1), sent("n1", 2, 2.0, 0, 2), sent("n2", 1, 2.5, 1, 3),
+                              sent("n1", 3, 3.0, 1, 4))
+    for transition in (on, n2_on, again):
+        bus.put(f"sensor/{transition.sensor}/transition", transition)
+    wait_until(lambda: "seq gap before 3 of n1 could not be repaired" in agent.log, "the gap logged", logs=[agent])
+    reply = encode(SensorState(t=3.0, sensor="n1", value=1, seq=3, missed=[lost, again]))
+    state = bus.session.declare_queryable(bus.keys.state("n1"), lambda q: q.reply(bus.keys.state("n1"), reply))
+    try:
+        bus.tick(5.0, "peer_agent", agent, sent=4)
+    finally:
+        state.undeclare()
+    wait_until(lambda: len(bus.messages("estimate")) >= 3, "three estimates", logs=[agent])
+    # n2 alone detects at 2.5 s (n1 went at 2.0 s); both at 3.0 s
+    assert [(m.t, m.node, m.x) for _, m in bus.messages("estimate")] == [(1.0, "n1", 1.0), (2.5, "n2", 2.0),
+                                                                        (3.0, "n1", 1.5)]
+    assert agent.stop() == 0
+    assert "bad payloads" not in agent.log, agent.log
+
+
+def test_a_restarted_sensor_agent_still_serves_what_it_sent_before_its_checkpoint(tmp_path, zenoh_router,
+                                                                                  services, bus):
+    """Transitions sent in the last seconds before a SIGKILL may have been in flight: the
+    checkpoint keeps them, and the instance restarted from it answers a state query for them."""
+    state_dir = tmp_path / "state"
+    state_dir.mkdir(mode=0o700)
+    args = ("--sensors", "n0", "--id", "s0", "--state-dir", str(state_dir), "--net", NET)
+    recent = bus.session.declare_queryable(bus.keys.recent(), lambda q: q.reply(bus.keys.recent(),
+                                                                                encode(Clock(t=2.5))))
+    try:
+        agent = services("sensor_agent", *args, endpoint=zenoh_router)
+        bus.wait_for("sensor_agent", agent)
+        for t, value in ((1.0, 1), (2.0, 0)):
+            bus.put("raw/n0", RawSample(t=t, sensor="n0", value=value))
+        bus.tick(2.5, "sensor_agent", agent)
+        wait_until(lambda: len(bus.messages("transition")) >= 2, "two transitions", logs=[agent])
+        before = [m for _, m in bus.messages("transition")]
+        assert [(m.seq, m.source_seq) for m in before] == [(1, 1), (2, 2)]
+        agent.proc.send_signal(signal.SIGKILL)
+        assert agent.wait(HUNG) == -signal.SIGKILL
+        wait_until(lambda: not bus.alive("sensor_agent"), "the killed agent's token to go")
+        restarted = services("sensor_agent", *args, endpoint=zenoh_router)
+        bus.wait_for("sensor_agent", restarted)
+        replies = [decode(SensorState, r.ok.payload.to_bytes())
+                   for r in bus.session.get(f"{bus.keys.state('n0')}?source=s0;after=0", timeout=5.0) if r.ok]
+    finally:
+        recent.undeclare()
+    assert [state.missed for state in replies] == [before], restarted.log
+    assert "restarted; resuming from its checkpoint" in restarted.log
+    assert restarted.stop() == 0
 
 
 @pytest.fixture(scope="module")

@@ -194,8 +194,17 @@ class TransitionConsumer(Service):
         since = self.sequence.last.get(transition.sensor, 0)
         selector = f"{self.keys.state(transition.sensor)}?since={since}"
         if not self.fetch_missed(selector, before=transition):
-            log.warning("%s: seq gap before %d of %s could not be repaired (no state reply)", self.name,
-                        transition.seq, transition.sensor)
+            log.warning("%s: seq gap before %d of %s could not be repaired now (no state reply)%s", self.name,
+                        transition.seq, transition.sensor,
+                        "; asked again at its agent's next progress report" if transition.source else "")
+
+    def taken(self, transition: Transition) -> bool:
+        """Whether ``transition`` was taken already: by its agent's count where it carries one
+        (exact in any order: a transition lost before a later one of its sensor that was taken
+        is fetched afterwards), else by its sensor's ``seq``."""
+        if transition.source is not None and transition.source_seq is not None:
+            return self.sources.seen(transition)
+        return self.sequence.classify(transition) == "duplicate"
 
     def on_agent_progress(self, sample: zenoh.Sample) -> None:
         """A sensor agent says how far it has handled its samples and how many transitions it
@@ -236,7 +245,7 @@ class TransitionConsumer(Service):
                 continue
             if upto is not None and transition.source_seq > upto:
                 continue
-            if self.sequence.classify(transition) != "duplicate" and not self.sources.seen(transition):
+            if not self.taken(transition):
                 self.take(transition)
                 self.fetched.add((transition.source, transition.source_seq))
         return replied
