@@ -20,8 +20,10 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	@$(BINTRACK) demo
 
+# One worker per core (pytest-xdist), a test file per worker: the live tests mostly wait on
+# services and routers, so two files at once on 2 cores halve the time.
 test: $(STAMP) browser
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n auto --dist loadfile
 
 # The map's browser tests drive Debian's chromium-headless-shell (Playwright never downloads a
 # browser). Installed here with apt-get when missing and apt-get is usable (root); elsewhere

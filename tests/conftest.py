@@ -5,6 +5,8 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +14,13 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 HUNG = 300.0  # s: every wait is on an event; its timeout only fails a hung run (a loaded CPU is not one)
+
+
+def pytest_configure(config):
+    # pytest-xdist's workers ignore SIGINT (Ctrl-C is for the controller), and the programs a
+    # test starts would inherit that; the tests interrupt them with SIGINT as a user would.
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def write_foreign_dataset(folder: Path, *, nodes: int = 200, size: float = 200.0, sensing_range: float = 20.0,
