@@ -389,8 +389,11 @@ class Service:
         self._declared.append(self.session.declare_queryable(key_expr, self.inbox.callback(answer)))
 
     def publish(self, key_expr: str, message: Message) -> None:
+        """Put ``message`` on ``key_expr``. It waits while the way to the router is full rather
+        than drop (Zenoh's default for puts): a burst, such as a tracker's outputs at the end of
+        a stream, must reach the recorder whole."""
         assert self.session is not None
-        self.session.put(key_expr, encode(message))
+        self.session.put(key_expr, encode(message), congestion_control=zenoh.CongestionControl.BLOCK)
 
     def decode(self, cls: type, sample: zenoh.Sample):
         """The message in ``sample``, or None (counted and logged once per sender) if bad."""
