@@ -9,12 +9,20 @@ station by its ``region/<r>/alive`` token: when one goes it logs it at once, sto
 that region and keeps its last tracks in the output with ``stale: true``; when it is back it is
 waited for again. The ``tracks`` queryable returns the latest merged ``TrackSet``
 (``tracks?after=T``: the recent ones after T).
+
+With ``--state-dir`` it keeps a checkpoint (the merge's state: identities, pending scans); a
+restarted merge resumes from it and asks each region's base station for the scans published
+after the last one it merged (``region/<r>/tracks?after=T``) before it takes progress reports
+again, so its output, identities included, is what it would have been without the restart.
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
+import math
 import sys
+import time
 from collections import deque
 
 import zenoh
@@ -23,7 +31,8 @@ from bintrack.argtypes import positive_float
 from bintrack.keys import parse_key
 from bintrack.live.bus import Service, add_bus_arguments, log, service_main
 from bintrack.live.tracks_queryable import answer_tracks_query
-from bintrack.messages import Clock, TrackSet
+from bintrack.live.transition_intake import CHECKPOINT_INTERVAL, CHECKPOINT_SPAN
+from bintrack.messages import Clock, MessageError, TrackSet, decode
 from bintrack.regions import RegionMap
 from bintrack.trackers.multi.region_merge import MergeConfig, RegionMerge
 
@@ -41,14 +50,61 @@ class Merge(Service):
         self.merge = RegionMerge(self.regions, MergeConfig(gate=self.args.gate, handover=self.args.handover))
         self.latest: TrackSet | None = None
         self.history: deque[TrackSet] = deque(maxlen=TRACKS_HISTORY)
+        self.checkpointed_at, self.checkpointed_t = -math.inf, -math.inf
+        resumed = self.resume()
         self.serve(self.keys.tracks(), self.on_tracks_query)
         self.subscribe(self.keys.region_tracks(), self.on_region_tracks)
+        if resumed:
+            # the scans published while it was gone, before any progress report can release them
+            fetched = await asyncio.to_thread(self.fetch_region_tracks, self.merge.emitted_up_to)
+            for region, tracks in fetched:
+                self.merge.add(region, tracks)
+            log.info("%s: resumed after t=%g s; %d region scans published since fetched from the base stations",
+                     self.name, self.merge.emitted_up_to, len(fetched))
         self.subscribe(self.keys.region_progress(), self.on_region_progress)
         self.subscribe(self.keys.clock(), self.on_clock)
         self._declared.append(self.session.liveliness().declare_subscriber(
             self.keys.region_alive(), self.inbox.callback(self.on_region_alive), history=True))
         self.follow_end_of_stream(["basestation"], lambda t: self.emit(self.merge.finish()))
         log.info("%s: merging regions %s", self.name, ", ".join(self.regions.names))
+
+    def resume(self) -> bool:
+        """Take back the checkpoint of an earlier instance, if there is one; whether there was."""
+        saved = self.load_checkpoint()
+        if saved is None:
+            return False
+        try:
+            merge, latest, history = saved
+            if not isinstance(merge, RegionMerge) or sorted(merge.regions.names) != sorted(self.regions.names):
+                raise ValueError("another deployment's regions")
+        except (TypeError, ValueError) as exc:
+            log.warning("%s: checkpoint not of this version or deployment (%s); starting afresh", self.name, exc)
+            return False
+        self.merge, self.latest = merge, latest
+        self.history.extend(history)
+        return True
+
+    def checkpoint(self, t: float) -> None:
+        """Save the merge's state every CHECKPOINT_INTERVAL s of wall clock or CHECKPOINT_SPAN s
+        of event time (``t``, s), if ``--state-dir`` is set."""
+        now = time.monotonic()
+        if self.checkpoint_path() is not None and (now - self.checkpointed_at >= CHECKPOINT_INTERVAL
+                                                   or t - self.checkpointed_t >= CHECKPOINT_SPAN):
+            self.save_checkpoint((self.merge, self.latest, list(self.history)))
+            self.checkpointed_at, self.checkpointed_t = now, t
+
+    def fetch_region_tracks(self, after: float) -> list[tuple[str, TrackSet]]:
+        """(region, scan) of every scan later than ``after`` (s) that the regions' base stations
+        still hold (their ``tracks?after=T`` queryables); blocking, call off the loop."""
+        fetched = []
+        for region in self.regions.names:
+            key = self.keys.region_tracks(region)
+            for payload in self.query(f"{key}?after={after!r}", timeout=2.0):
+                try:
+                    fetched.append((region, decode(TrackSet, payload)))
+                except MessageError as exc:
+                    self.bad.report(key, exc.reason)
+        return fetched
 
     def region_of(self, sample: zenoh.Sample) -> str | None:
         key = str(sample.key_expr)
@@ -93,6 +149,8 @@ class Merge(Service):
             self.latest = tracks
             self.history.append(tracks)
             self.publish(self.keys.tracks(), tracks)
+        if merged:
+            self.checkpoint(merged[-1].t)
 
     def on_tracks_query(self, query: zenoh.Query) -> None:
         answer_tracks_query(query, self.keys.tracks(), self.latest, self.history)

@@ -8,6 +8,8 @@ then a region's base station and the middle router are killed and the others log
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import sys
 import threading
@@ -194,3 +196,35 @@ def test_a_lost_region_is_logged_at_once_and_its_tracks_turn_stale_while_the_oth
     assert after and after[-1].t >= 85.0, "the merge stopped with the region"
     assert all(tr.stale for m in after for tr in m.tracks if tr.region == region)
     assert any(not tr.stale for m in after for tr in m.tracks)  # the other regions go on
+
+
+@pytest.mark.parametrize("victims", [["basestation-r0c1"], ["merge"], ["sensor_agent-r1c0", "router-r1c1"]])
+def test_up_with_regions_restarts_a_killed_service_and_loses_nothing(field, tmp_path, victims):
+    """``bintrack up --regions 4``: a region's base station, the merge, or a region's sensor
+    agent and then another region's router are SIGKILLed mid-run; ``up`` restarts each, which
+    resumes from its checkpoint (the router: the mesh connects again and the services fetch what
+    they missed), and the recorded ``tracks`` are still the offline ``track --regions`` rows,
+    global identities included."""
+    from test_faults import Up, children
+
+    def pid_of(victim: str) -> int:
+        if not victim.startswith("router-"):
+            return up.service_pid(victim)
+        name = f"--name {victim.removeprefix('router-')} "
+        pids = [pid for pid, cmd in children(up.proc.pid).items() if "bintrack.services.router" in cmd and name in cmd + " "]
+        assert len(pids) == 1, (victim, children(up.proc.pid))
+        return pids[0]
+
+    recording = tmp_path / "run.mcap"
+    up = Up(str(field / "field"), "--tracker", "mcmcda", "--regions", "4", "--speed", "0", "--record",
+            str(recording), "--exit-at-end")
+    for n, victim in enumerate(victims):
+        up.event_time_at_least(20.0 * (n + 1))
+        os.kill(pid_of(victim), signal.SIGKILL)
+        up.wait_for(lambda line: line.startswith(f"up: {victim} killed by SIGKILL"), f"{victim}'s death logged")
+        up.wait_for(lambda line: line.startswith(f"up: {victim} restarted"), f"{victim}'s restart logged")
+    assert up.finish() == 0, up.log[-4000:]
+    bintrack("export", str(recording), "--what", "tracks", "--out", str(tmp_path / "live.csv"), cwd=tmp_path)
+    live, offline = read_tracks(tmp_path / "live.csv"), read_tracks(field / "regions.csv")
+    assert [(r.t, r.track) for r in live] == [(r.t, r.track) for r in offline], up.log[-6000:]
+    assert max(abs(a.x - b.x) + abs(a.y - b.y) for a, b in zip(live, offline)) < 1e-6
