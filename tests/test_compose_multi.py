@@ -45,6 +45,23 @@ def test_two_sites_each_with_the_official_router_image_and_the_same_pinned_versi
     assert regions == [r.name for r in open_dataset(REPO / "datasets" / "darpa-grid-3-sites").deployment.regions]
 
 
+def test_each_service_but_the_map_keeps_its_checkpoint_in_its_sites_state_volume():
+    """A restarted container resumes (README, "When things fail"): a fixed, unique --id and
+    --state-dir on a named volume of the service's own site (the sites are other machines)."""
+    volumes = COMPOSE["volumes"]
+    ids = []
+    for name, service in BINTRACK.items():
+        command = service["command"]
+        if command[0] == MODULE_PREFIX + "view":
+            continue
+        ids += option_values(command, "--id")
+        (state,) = option_values(command, "--state-dir")
+        (mount,) = [v for v in service["volumes"] if v.split(":")[1] == state]
+        site = option_values(command, "-e")[0].split("/")[1].split(":")[0]  # router-a, router-b
+        assert mount.split(":")[0] == "state-" + site.removeprefix("router-") and mount.split(":")[0] in volumes, name
+    assert sorted(ids) == sorted(n for n, s in BINTRACK.items() if s["command"][0] != MODULE_PREFIX + "view")
+
+
 def router_args(service: dict, local: dict[str, str]) -> tuple[str, list[str]]:
     """The compose router's config file (repository path) and its -e peers, mapped to local routers."""
     command = service["command"]
@@ -99,6 +116,12 @@ def test_the_two_site_stack_runs_as_local_processes(services, tmp_path):
             assert started[name].wait(timeout=20) == 0, f"{name} on SIGTERM:\n{started[name].log}"
         for router in reversed(routers):
             assert router.stop() == 0
+        # each service left its checkpoint in its own site's volume
+        for name, service in BINTRACK.items():
+            if "--state-dir" in service["command"]:
+                site = option_values(service["command"], "-e")[0].split("/")[1].split(":")[0].removeprefix("router-")
+                module = service["command"][0][len(MODULE_PREFIX):]
+                assert (tmp_path / f"state-{site}" / f"{module}-{name}.pickle").is_file(), name
     finally:
         for router in routers:
             if router.proc.poll() is None:
