@@ -3,8 +3,10 @@
 Makes the certificates of the secure profile (``deploy/secure/``) with the ``cryptography``
 package: a certificate authority (``ca.pem``, ``ca-key.pem``) and, per role, ``<role>.pem`` +
 ``<role>-key.pem`` signed by it, whose common name is the role (the router's access control
-matches it), plus the router's own (``router``, for ``localhost``/127.0.0.1 and the compose
-host name ``router``). Keys are EC P-256, written with mode 0600 and never printed. With
+matches it), plus the router's own (``router``, for ``localhost``/127.0.0.1, the compose
+host name ``router`` and the addresses of ``up --regions``' region routers, 127.0.0.2 …
+127.0.0.251; the region routers show it to each other too). ``merge`` is the role of the
+regions' merge service. Keys are EC P-256, written with mode 0600 and never printed. With
 ``--ca DIR`` an existing CA signs (to rotate one role's certificate, see the README).
 """
 
@@ -22,9 +24,12 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from bintrack.errors import CommandError
+from bintrack.live.stack import MAX_REGIONS, region_address
 
-ROLES = ("router", "sensor_agent", "peer_agent", "basestation", "replay", "recorder", "viewer")
+ROLES = ("router", "sensor_agent", "peer_agent", "basestation", "replay", "recorder", "viewer", "merge")
 ROUTER_NAMES = ("localhost", "router")
+# the router certificate's addresses: the hub's and those of `up --regions`' region routers
+ROUTER_ADDRESSES = ("127.0.0.1", *(region_address(i) for i in range(MAX_REGIONS)))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -73,10 +78,12 @@ def make_ca(days: int) -> tuple[x509.Certificate, ec.EllipticCurvePrivateKey]:
 def make_leaf(role: str, ca: x509.Certificate, ca_key: ec.EllipticCurvePrivateKey,
               days: int) -> tuple[x509.Certificate, ec.EllipticCurvePrivateKey]:
     """A certificate with common name ``role`` signed by ``ca``, for client and server use; its
-    subject alternative names are the router's host names and 127.0.0.1."""
+    subject alternative names are the router's host names and 127.0.0.1 (the ``router`` role's
+    also the region routers' addresses, :data:`ROUTER_ADDRESSES`)."""
     key = ec.generate_private_key(ec.SECP256R1())
     now = datetime.datetime.now(datetime.timezone.utc)
-    names = [x509.DNSName(n) for n in ROUTER_NAMES] + [x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]
+    addresses = ROUTER_ADDRESSES if role == "router" else ("127.0.0.1",)
+    names = [x509.DNSName(n) for n in ROUTER_NAMES] + [x509.IPAddress(ipaddress.ip_address(a)) for a in addresses]
     cert = (x509.CertificateBuilder().subject_name(_name(role)).issuer_name(ca.subject)
             .public_key(key.public_key()).serial_number(x509.random_serial_number())
             .not_valid_before(now - datetime.timedelta(minutes=5)).not_valid_after(now + datetime.timedelta(days=days))

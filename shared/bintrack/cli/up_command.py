@@ -71,13 +71,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--view-bind", default="127.0.0.1", metavar="ADDRESS",
                         help="address the map is served on (default: %(default)s, this machine only)")
     parser.add_argument("--secure", action="store_true",
-                        help="mutual TLS and per-role access control (deploy/secure/); --listen must be a tls/ endpoint")
+                        help="mutual TLS and per-role access control (deploy/secure/); --listen must be a tls/ endpoint "
+                        "(with --regions, the region routers too listen on tls/ and show each other the router "
+                        "certificate)")
     parser.add_argument("--certs", default="certs", metavar="DIR",
                         help="with --secure: the certificates of `bintrack certs --out DIR` (default: %(default)s)")
     parser.add_argument("--regions", type=int, metavar="N",
                         help="mcmcda in N regions: a router per region on 127.0.0.2… (meshed with the one on "
-                        "--listen), a sensor agent and a base station per region, and the merge; the dataset's own "
-                        "regions if it names N, else its field cut into a grid of N")
+                        "--listen, with its scheme: tcp/ or, with --secure, tls/), a sensor agent and a base station "
+                        "per region, and the merge; the dataset's own regions if it names N, else its field cut into "
+                        "a grid of N")
     parser.add_argument("--progress-interval", type=positive_float, default=1.0, metavar="S",
                         help="seconds between progress lines (default: %(default)s)")
 
@@ -275,8 +278,6 @@ def run(args: argparse.Namespace) -> int:
     view_bind = getattr(args, "view_bind", "127.0.0.1")
     regions_dir = None
     if getattr(args, "regions", None) is not None:
-        if args.secure:
-            raise CommandError("--regions with --secure is not supported yet")
         regions_dir, source, names = _region_source(args)
         try:
             commands = region_stack_commands(regions=names, endpoint=args.listen, net=net, source=source,

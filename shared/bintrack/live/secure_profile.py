@@ -4,17 +4,21 @@ The profile's JSON5 files name the certificates by their compose mount paths (``
 :func:`router_config` and :func:`client_options` put a local certificate folder (made by
 ``bintrack certs``) in their place, so that ``bintrack up --secure`` runs the same profile on
 loopback. A client's role is its certificate's common name, which the router's
-``access_control`` matches.
+``access_control`` matches. The routers of ``up --regions`` run router.json5 too
+(:func:`router_options`), each showing the ``router`` certificate both to its clients and to
+the routers it connects to; the ``router`` policy lets routers exchange ``bintrack/**``.
 """
 
 from __future__ import annotations
 
+import ipaddress
 import json
 from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
 
 import zenoh
+from cryptography import x509
 
 from bintrack.errors import CommandError
 from bintrack.live.stack import ServiceCommand
@@ -48,6 +52,37 @@ def router_config(certs: Path, listen: Iterable[str], profile: Path = PROFILE) -
     return config
 
 
+def router_options(certs: Path, profile: Path = PROFILE) -> tuple[str, ...]:
+    """The options (``-c``, ``--cfg``) that make ``python -m bintrack.services.router`` a router
+    of the secure profile: ``profile``/router.json5 (mutual TLS, the access control) with the
+    ``router`` certificate of ``certs`` to listen on its ``-l`` and to connect to the routers of
+    its ``-e`` (tls/… endpoints), whose access control sees it as the ``router`` role."""
+    options: list[str] = ["-c", str(profile / "router.json5")]
+    for key, value in {**_paths(certs, "router", "listen"), **_paths(certs, "router", "connect")}.items():
+        options += ["--cfg", f"{key}:{json.dumps(value)}"]
+    return tuple(options)
+
+
+def check_router_names(certs: Path, endpoints: Iterable[str]) -> None:
+    """Raise ValueError unless the ``router`` certificate of ``certs`` names the host of each of
+    ``endpoints`` (``tls/HOST:PORT``): its clients and the other routers check it when they connect."""
+    cert = x509.load_pem_x509_certificate((certs / "router.pem").read_bytes())
+    try:
+        names = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    except x509.ExtensionNotFound:
+        names = x509.SubjectAlternativeName([])
+    ips, hosts = set(names.get_values_for_type(x509.IPAddress)), set(names.get_values_for_type(x509.DNSName))
+    for endpoint in endpoints:
+        host = endpoint.partition("/")[2].rpartition(":")[0].strip("[]")
+        try:
+            named = ipaddress.ip_address(host) in ips
+        except ValueError:
+            named = host in hosts
+        if not named:
+            raise ValueError(f"{certs / 'router.pem'} does not name {host}, where a router of --regions listens; "
+                             f"make it again with `bintrack certs --out {certs} --roles router --ca {certs}`")
+
+
 def client_options(role: str, certs: Path, profile: Path = PROFILE) -> tuple[str, ...]:
     """The bus options (``-c``, ``--cfg``) that make a service a ``role`` client of the secure router."""
     options: list[str] = ["-c", str(profile / f"{role}.json5")]
@@ -75,9 +110,11 @@ def role_of(service: str) -> str:
 
 
 def secure_commands(commands: Iterable[ServiceCommand], certs: Path, profile: Path = PROFILE) -> list[ServiceCommand]:
-    """``commands`` (:func:`bintrack.live.stack.stack_commands`), each service a client of the
-    secure router in its role (:func:`role_of`)."""
-    return [replace(c, args=(*awaiting_token_holders(c.args), *client_options(role_of(c.name), certs, profile)))
+    """``commands`` (:func:`bintrack.live.stack.stack_commands` or ``region_stack_commands``),
+    each service a client of the secure router in its role (:func:`role_of`), each region's
+    router a router of the profile (:func:`router_options`)."""
+    return [replace(c, args=(*c.args, *router_options(certs, profile))) if c.name == "router" else
+            replace(c, args=(*awaiting_token_holders(c.args), *client_options(role_of(c.name), certs, profile)))
             for c in commands]
 
 
@@ -92,15 +129,18 @@ def awaiting_token_holders(args: tuple[str, ...] | list[str]) -> tuple[str, ...]
 
 
 def secure_up(commands: Iterable[ServiceCommand], certs: str, listen: str) -> tuple[list[ServiceCommand], zenoh.Config]:
-    """``bintrack up --secure``: the services as clients of their roles, and the router's config.
-    Raises CommandError for a listen endpoint that is not TLS or a missing certificate."""
+    """``bintrack up --secure``: the services as clients of their roles (the routers of
+    ``--regions`` as routers of the profile), and the hub router's config. Raises CommandError
+    for a listen endpoint that is not TLS, a missing certificate or a router certificate that
+    does not name a region router's address."""
     if not listen.startswith("tls/"):
         raise CommandError(f"--secure needs a tls/ endpoint to listen on, e.g. --listen tls/127.0.0.1:7447; got {listen}")
     commands = list(commands)
     try:
         check_certs(Path(certs), [role_of(c.name) for c in commands])
+        check_router_names(Path(certs), [c.args[c.args.index("-l") + 1] for c in commands if c.name == "router"])
         return secure_commands(commands, Path(certs)), router_config(Path(certs), [listen])
-    except FileNotFoundError as exc:
+    except (FileNotFoundError, ValueError) as exc:
         raise CommandError(str(exc)) from None
     except zenoh.ZError as exc:
         raise CommandError(f"bad secure profile: {exc}") from None

@@ -67,14 +67,23 @@ def _number(value: float) -> str:
     return str(int(value)) if float(value).is_integer() else str(value)
 
 
+MAX_REGIONS = 250  # their routers on 127.0.0.2 … 127.0.0.251
+
+
+def region_address(i: int) -> str:
+    """The loopback address of the router of region ``i`` (from 0) on this machine."""
+    return f"127.0.0.{i + 2}"
+
+
 def region_endpoints(listen: str, count: int) -> list[str]:
-    """Where the routers of ``count`` regions listen on this machine: ``listen``'s port on
-    127.0.0.2, 127.0.0.3, … (``listen`` itself is the hub router's, on 127.0.0.1)."""
+    """Where the routers of ``count`` regions listen on this machine: ``listen``'s scheme and
+    port on 127.0.0.2, 127.0.0.3, … (``listen`` itself is the hub router's, on 127.0.0.1)."""
     scheme, _, address = listen.partition("/")
     port = address.rpartition(":")[2]
-    if not port.isdigit() or count > 250:
-        raise ValueError(f"regions need a tcp/ADDRESS:PORT endpoint and at most 250 regions, got {listen}, {count}")
-    return [f"{scheme}/127.0.0.{i + 2}:{port}" for i in range(count)]
+    if not port.isdigit() or count > MAX_REGIONS:
+        raise ValueError(f"regions need a tcp/ADDRESS:PORT (or tls/…) endpoint and at most {MAX_REGIONS} regions, "
+                         f"got {listen}, {count}")
+    return [f"{scheme}/{region_address(i)}:{port}" for i in range(count)]
 
 
 def region_stack_commands(*, regions: list[str], endpoint: str, net: str, source: str | None = None,
