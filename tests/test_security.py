@@ -4,6 +4,7 @@ the router mesh of ``up --regions`` (region routers that show each other the rou
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import os
 import stat
@@ -58,6 +59,33 @@ def test_certs_are_signed_by_the_ca_with_the_role_as_common_name_and_private_key
     new = x509.load_pem_x509_certificate((tmp_path / "viewer.pem").read_bytes())
     new.verify_directly_issued_by(ca)
     assert stat.S_IMODE((tmp_path / "viewer-key.pem").stat().st_mode) == 0o600
+
+
+def test_the_router_certificate_names_the_hosts_of_a_mesh_on_several_machines(certs, tmp_path, capsys):
+    """``certs --router-name HOST`` (repeatable): the router certificate also names where the
+    routers of a multi-machine mesh listen, so that clients and routers reach them over TLS; a
+    router on an address it does not name is refused. 127.0.0.252 stands for another machine."""
+    site = tmp_path / "site"
+    assert cli.main(["certs", "--out", str(site), "--roles", "router", "--ca", str(certs),
+                     "--router-name", "127.0.0.252", "--router-name", "router-b.example"]) == 0
+    names = x509.load_pem_x509_certificate((site / "router.pem").read_bytes()).extensions.get_extension_for_class(
+        x509.SubjectAlternativeName).value
+    assert "router-b.example" in names.get_values_for_type(x509.DNSName)
+    assert ipaddress.ip_address("127.0.0.252") in names.get_values_for_type(x509.IPAddress)
+    endpoint = f"tls/127.0.0.252:{free_port()}"
+    for folder, reachable in ((site, True), (certs, False)):
+        router = zenoh.open(router_config(folder, [endpoint]))
+        try:
+            if reachable:
+                zenoh.open(client_config("viewer", certs, [endpoint])).close()
+            else:
+                with pytest.raises(zenoh.ZError):
+                    zenoh.open(client_config("viewer", certs, [endpoint]))
+        finally:
+            router.close()
+    assert cli.main(["certs", "--out", str(tmp_path / "bad"), "--router-name", "not a host!"]) == 2
+    assert "--router-name 'not a host!': not a host name or an IP address" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
 
 
 @pytest.fixture

@@ -39,6 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "(e.g. sensor_agent-north for a second sensor agent)")
     parser.add_argument("--days", type=int, default=365, help="validity of the certificates, days (default: %(default)s)")
     parser.add_argument("--ca", metavar="DIR", help="sign with the CA in DIR (ca.pem, ca-key.pem) instead of a new one")
+    parser.add_argument("--router-name", action="append", default=[], metavar="HOST",
+                        help="a further host name or IP address the router certificate names, repeatable: where "
+                        "the routers of a mesh on several machines listen (e.g. router-b, 10.0.0.2)")
 
 
 def _write(path: Path, data: bytes, private: bool) -> None:
@@ -75,15 +78,31 @@ def make_ca(days: int) -> tuple[x509.Certificate, ec.EllipticCurvePrivateKey]:
     return cert, key
 
 
+def host_name(value: str) -> x509.GeneralName:
+    """``value`` as a subject alternative name: an IP address, else a DNS name; raises
+    CommandError for neither."""
+    try:
+        return x509.IPAddress(ipaddress.ip_address(value))
+    except ValueError:
+        pass
+    labels = value.rstrip(".").split(".")
+    if not value or len(value) > 253 or not all(label and len(label) <= 63 and label.replace("-", "").isalnum()
+                                                and not label.startswith("-") for label in labels):
+        raise CommandError(f"--router-name {value!r}: not a host name or an IP address")
+    return x509.DNSName(value)
+
+
 def make_leaf(role: str, ca: x509.Certificate, ca_key: ec.EllipticCurvePrivateKey,
-              days: int) -> tuple[x509.Certificate, ec.EllipticCurvePrivateKey]:
+              days: int, router_names: tuple[str, ...] = ()) -> tuple[x509.Certificate, ec.EllipticCurvePrivateKey]:
     """A certificate with common name ``role`` signed by ``ca``, for client and server use; its
     subject alternative names are the router's host names and 127.0.0.1 (the ``router`` role's
-    also the region routers' addresses, :data:`ROUTER_ADDRESSES`)."""
+    also the region routers' addresses, :data:`ROUTER_ADDRESSES`, and ``router_names``)."""
     key = ec.generate_private_key(ec.SECP256R1())
     now = datetime.datetime.now(datetime.timezone.utc)
     addresses = ROUTER_ADDRESSES if role == "router" else ("127.0.0.1",)
     names = [x509.DNSName(n) for n in ROUTER_NAMES] + [x509.IPAddress(ipaddress.ip_address(a)) for a in addresses]
+    if role == "router":
+        names += [n for n in map(host_name, router_names) if n not in names]
     cert = (x509.CertificateBuilder().subject_name(_name(role)).issuer_name(ca.subject)
             .public_key(key.public_key()).serial_number(x509.random_serial_number())
             .not_valid_before(now - datetime.timedelta(minutes=5)).not_valid_after(now + datetime.timedelta(days=days))
@@ -95,9 +114,10 @@ def make_leaf(role: str, ca: x509.Certificate, ca_key: ec.EllipticCurvePrivateKe
     return cert, key
 
 
-def make_certs(out: Path, roles: list[str], days: int = 365, ca_dir: Path | None = None) -> list[Path]:
+def make_certs(out: Path, roles: list[str], days: int = 365, ca_dir: Path | None = None,
+               router_names: tuple[str, ...] = ()) -> list[Path]:
     """Write the CA (unless ``ca_dir`` gives one) and each role's certificate and key into
-    ``out``; returns the files written."""
+    ``out`` (the router's also naming ``router_names``); returns the files written."""
     out.mkdir(parents=True, exist_ok=True)
     written = []
     pem = serialization.Encoding.PEM
@@ -116,7 +136,7 @@ def make_certs(out: Path, roles: list[str], days: int = 365, ca_dir: Path | None
             _write(out / "ca.pem", ca.public_bytes(pem), private=False)
             written.append(out / "ca.pem")
     for role in roles:
-        cert, key = make_leaf(role, ca, ca_key, days)
+        cert, key = make_leaf(role, ca, ca_key, days, router_names)
         _write(out / f"{role}.pem", cert.public_bytes(pem), private=False)
         _write(out / f"{role}-key.pem", _key_pem(key), private=True)
         written += [out / f"{role}.pem", out / f"{role}-key.pem"]
@@ -130,6 +150,9 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"--roles: role names are letters, digits, - and _; got {args.roles!r}")
     if args.days < 1:
         raise CommandError(f"--days must be at least 1, got {args.days}")
-    written = make_certs(Path(args.out), roles, args.days, Path(args.ca) if args.ca else None)
+    router_names = tuple(args.router_name)
+    for name in router_names:
+        host_name(name)  # refused before anything is written
+    written = make_certs(Path(args.out), roles, args.days, Path(args.ca) if args.ca else None, router_names)
     print(f"certs: wrote {len(written)} files into {args.out} (keys mode 0600): {', '.join(p.name for p in written)}")
     return 0
