@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import math
 import random
+from bisect import bisect_right
 from collections import deque
 from dataclasses import dataclass, replace
 
@@ -62,6 +63,7 @@ from bintrack.messages import PositionReports, Track, TrackSet
 from bintrack.trackers.multi.target_fit import Expectation
 
 _LOG_2PI = math.log(2.0 * math.pi)
+_MISSING = object()
 
 
 @dataclass(frozen=True)
@@ -146,7 +148,7 @@ class Anchor:
     reports: int
 
 
-@dataclass
+@dataclass(slots=True)
 class _Report:
     scan: int
     t: float
@@ -175,7 +177,25 @@ def _update(state, z: float, r: float):
     return new, -0.5 * (_LOG_2PI + math.log(s) + nu * nu / s)
 
 
-@dataclass
+class _Gate:
+    """The window's reports that may follow one report or anchor in a track (``_follows``):
+    ``at[k]`` those of scan k in report order, ``all`` all of them. Which reports may follow
+    which depends only on the two and the configuration, so the chain looks it up here."""
+
+    __slots__ = ("scan", "at", "all")
+
+    def __init__(self, scan: int):
+        self.scan = scan
+        self.at: dict[int, list[int]] = {}
+        self.all: set[int] = set()
+
+    def add(self, scan: int, rids: list[int]) -> None:
+        if rids:
+            self.at[scan] = rids
+            self.all.update(rids)
+
+
+@dataclass(slots=True)
 class _Track:
     reports: tuple[int, ...]
     anchor: Anchor | None = None
@@ -191,6 +211,7 @@ class OnlineMCMCDA:
         self._rng = random.Random(config.seed)
         self._scans: deque[tuple[int, float, list[int]]] = deque()
         self._reports: dict[int, _Report] = {}
+        self._gates: dict[int, _Gate] = {}  # report → the reports that may follow it
         self._next_report = 0
         self._scan = -1
         self._tracks: list[_Track] = []  # the current MAP
@@ -201,6 +222,23 @@ class OnlineMCMCDA:
         self._log_lf = math.log(config.false_alarm_rate)
         self._log_lb = math.log(config.birth_rate)
         self.last_score = 0.0
+
+    # the chain's scratch tables, made afresh for each scan's chain (_run_chain)
+    _SCRATCH = ("_cache", "_filters", "_anchor_gates", "_latest", "_now")
+
+    def __getstate__(self) -> dict:
+        """For a checkpoint: the tracker without the chain's scratch tables."""
+        return {k: v for k, v in self.__dict__.items() if k not in self._SCRATCH}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        if "_gates" not in state:  # a checkpoint taken before the gate tables: make them from the window
+            self.__dict__.pop("_by_scan", None)
+            self._gates, now = {}, self._scan
+            for k, _, ids in self._scans:
+                self._scan = k
+                self._add_gates(ids)
+            self._scan = now
 
     # ------------------------------------------------------------------ public
 
@@ -220,7 +258,7 @@ class OnlineMCMCDA:
         while len(self._scans) > self.config.window:
             self._fix_oldest()
         self._expire_anchors()
-        self._by_scan = {k: ids for k, _, ids in self._scans}
+        self._add_gates(ids)
         self._run_chain()
         self._label()
         published = self._publish(scan.t)
@@ -252,6 +290,7 @@ class OnlineMCMCDA:
             track.reports = tuple(r for r in track.reports if r != rid)
         for rid in ids:
             del self._reports[rid]
+            del self._gates[rid]
             self._owner.pop(rid, None)
 
     def _expire_anchors(self) -> None:
@@ -303,16 +342,7 @@ class OnlineMCMCDA:
         if not self._shared_ok(track):
             self._cache[key] = -math.inf
             return -math.inf
-        sx, sy, last_scan, last_t, _, rest = self._start(track)
-        # a new track's first report: a birth (λ_b, uniform position) that is detected
-        score = self._log_lb + math.log(c.pd) - self._log_lf if track.anchor is None else 0.0
-        log_pd, log_md = math.log(c.pd), math.log1p(-c.pd)
-        log_stay = math.log1p(-c.termination)
-        for rep in rest:
-            gap = rep.scan - last_scan
-            sx, sy, log_n = self._advance(sx, sy, last_t, rep)
-            score += log_n + gap * log_stay + (gap - 1) * log_md + log_pd - self._log_lf
-            last_scan, last_t = rep.scan, rep.t
+        _, _, last_scan, _, score = self._filtered(track.anchor, track.reports)
         # after the last report: terminated at some scan up to now, or still alive undetected
         m = self._scan - last_scan
         if m > 0:
@@ -320,6 +350,32 @@ class OnlineMCMCDA:
             score += math.log(c.termination * (1.0 - alive ** m) / (1.0 - alive) + alive ** m)
         self._cache[key] = score
         return score
+
+    def _filtered(self, anchor: Anchor | None, reports: tuple[int, ...]):
+        """The filter of a track with ``anchor`` after its window ``reports``: (state x, state y,
+        scan and time of the last report, its score in ``_score`` before the term after that
+        report). Memoised per prefix, as proposals mostly share their tracks' first reports."""
+        key = (id(anchor) if anchor else None, reports)
+        done = self._filters.get(key)
+        if done is not None:
+            return done
+        c = self.config
+        if not reports:
+            done = anchor.x, anchor.y, anchor.scan, anchor.t, 0.0
+        elif anchor is None and len(reports) == 1:
+            rep = self._reports[reports[0]]
+            sx, sy = self._initial(rep)
+            # a new track's first report: a birth (λ_b, uniform position) that is detected
+            done = sx, sy, rep.scan, rep.t, self._log_lb + math.log(c.pd) - self._log_lf
+        else:
+            sx, sy, last_scan, last_t, score = self._filtered(anchor, reports[:-1])
+            rep = self._reports[reports[-1]]
+            gap = rep.scan - last_scan
+            sx, sy, log_n = self._advance(sx, sy, last_t, rep)
+            score += log_n + gap * math.log1p(-c.termination) + (gap - 1) * math.log1p(-c.pd) + math.log(c.pd) - self._log_lf
+            done = sx, sy, rep.scan, rep.t, score
+        self._filters[key] = done
+        return done
 
     def _shared_ok(self, track: _Track) -> bool:
         """A new track may not begin with a shared report (a copy is no evidence of a target)."""
@@ -335,6 +391,27 @@ class OnlineMCMCDA:
         reach = self.config.max_speed * (rep.t - a_t) + self.config.gate_sigmas * math.sqrt(a_var + max(rep.rx, rep.ry))
         return (rep.x - ax) ** 2 + (rep.y - ay) ** 2 <= reach * reach
 
+    def _add_gates(self, ids: list[int]) -> None:
+        """Gates for the new scan's reports ``ids``, which join the gates of the reports they may follow."""
+        for rid, gate in self._gates.items():
+            rep = self._reports[rid]
+            gate.add(self._scan, [r for r in ids if self._follows(rep.scan, rep.t, rep.x, rep.y, max(rep.rx, rep.ry), r)])
+        for rid in ids:
+            self._gates[rid] = _Gate(self._scan)
+
+    def _anchor_gate(self, a: Anchor) -> _Gate:
+        gate = _Gate(a.scan)
+        end = (a.scan, a.t, a.x[0], a.y[0], max(a.x[2], a.y[2]))
+        for k, _, ids in self._scans:
+            gate.add(k, [r for r in ids if self._follows(*end, r)])
+        return gate
+
+    def _gate(self, track: _Track) -> _Gate:
+        """The gate of the track's last report, or of its anchor if it has none."""
+        if track.reports:
+            return self._gates[track.reports[-1]]
+        return self._anchor_gates[id(track.anchor)]
+
     def _end_of(self, track: _Track) -> tuple[int, float, float, float, float] | None:
         """(scan, t, x, y, position variance) of the track's last report or anchor."""
         if track.reports:
@@ -346,65 +423,58 @@ class OnlineMCMCDA:
         return None
 
     def _valid(self, track: _Track) -> bool:
-        if track.anchor is None and len(track.reports) < 2:
-            return False
-        if track.anchor is not None:
-            a = track.anchor
-            prev = (a.scan, a.t, a.x[0], a.y[0], max(a.x[2], a.y[2]))
-        else:
-            r = self._reports[track.reports[0]]
-            prev = (r.scan, r.t, r.x, r.y, max(r.rx, r.ry))
-        for rid in track.reports[0 if track.anchor is not None else 1:]:
-            if not self._follows(*prev, rid):
+        if track.anchor is None:
+            if len(track.reports) < 2:
                 return False
-            r = self._reports[rid]
-            prev = (r.scan, r.t, r.x, r.y, max(r.rx, r.ry))
+            gate, rest = self._gates[track.reports[0]], track.reports[1:]
+        else:
+            gate, rest = self._anchor_gates[id(track.anchor)], track.reports
+        for rid in rest:
+            if rid not in gate.all:
+                return False
+            gate = self._gates[rid]
         return True
-
-    def _candidates(self, end: tuple[int, float, float, float], scan: int, free: set[int]) -> list[int]:
-        return [rid for rid in self._by_scan.get(scan, ()) if rid in free and self._follows(*end, rid)]
 
     # ------------------------------------------------------------------ proposals
 
-    def _extend(self, end, free: set[int], must: bool) -> tuple[list[int], float]:
-        """Grow a path forward from ``end`` through reports of ``free``; (added, log q).
-        ``must``: the first report may not be skipped by the stop draw (a birth needs two)."""
+    def _extend(self, gate: _Gate, free: set[int], must: bool) -> tuple[list[int], float]:
+        """Grow a path forward from the report or anchor of ``gate`` through reports of ``free``;
+        (added, log q). ``must``: the first report may not be skipped by the stop draw (a birth
+        needs two)."""
         c = self.config
+        rng, gates = self._rng, self._gates
         added: list[int] = []
         logq = 0.0
-        taken = set()
         while True:
-            if (added or not must) and self._rng.random() < c.stop:
+            if (added or not must) and rng.random() < c.stop:
                 return added, logq + math.log(c.stop)
-            span = min(c.max_misses + 1, self._scan - end[0])
+            span = min(c.max_misses + 1, self._scan - gate.scan)
             if span < 1:
                 return added, logq
-            d = self._rng.randint(1, span)
-            cands = [r for r in self._candidates(end, end[0] + d, free) if r not in taken]
+            d = rng.randrange(1, span + 1)  # randint(1, span), one call less
+            # candidates lie after every report added so far, so none of those is among them
+            cands = [r for r in gate.at.get(gate.scan + d, ()) if r in free]
             if not cands:
                 return added, logq + math.log(1.0 / span)
-            rid = self._rng.choice(cands)
+            rid = rng.choice(cands)
             logq += -math.log(span) - math.log(len(cands)) + (math.log1p(-c.stop) if (added or not must) else 0.0)
             added.append(rid)
-            taken.add(rid)
-            rep = self._reports[rid]
-            end = (rep.scan, rep.t, rep.x, rep.y, max(rep.rx, rep.ry))
+            gate = gates[rid]
 
-    def _path_logq(self, end, path: list[int], free: set[int], must: bool) -> float:
-        """log q of ``_extend`` proposing exactly ``path`` from ``end`` (then stopping)."""
+    def _path_logq(self, gate: _Gate, path: list[int], free: set[int], must: bool) -> float:
+        """log q of ``_extend`` proposing exactly ``path`` from ``gate``'s report or anchor (then stopping)."""
         c = self.config
+        gates = self._gates
         logq = 0.0
-        taken: set[int] = set()
         for i, rid in enumerate(path):
-            span = min(c.max_misses + 1, self._scan - end[0])
-            cands = [r for r in self._candidates(end, self._reports[rid].scan, free) if r not in taken]
-            if span < 1 or rid not in cands:
+            span = min(c.max_misses + 1, self._scan - gate.scan)
+            if span < 1 or rid not in gate.all or rid not in free:
                 return -math.inf
-            logq += -math.log(span) - math.log(len(cands)) + (math.log1p(-c.stop) if (i or not must) else 0.0)
-            taken.add(rid)
-            rep = self._reports[rid]
-            end = (rep.scan, rep.t, rep.x, rep.y, max(rep.rx, rep.ry))
-        span = min(c.max_misses + 1, self._scan - end[0])
+            after = gates[rid]
+            cands = len(free.intersection(gate.at[after.scan]))
+            logq += -math.log(span) - math.log(cands) + (math.log1p(-c.stop) if (i or not must) else 0.0)
+            gate = after
+        span = min(c.max_misses + 1, self._scan - gate.scan)
         return logq + (math.log(c.stop) if span >= 1 else 0.0)
 
     # ------------------------------------------------------------------ chain
@@ -414,31 +484,40 @@ class OnlineMCMCDA:
         (Algorithm 1 of Oh et al.), one after the other on the sampler's stream; the MAP over
         all of them is kept."""
         self._cache: dict = {}
+        self._filters: dict = {}
+        self._anchor_gates = {id(t.anchor): self._anchor_gate(t.anchor) for t in self._tracks if t.anchor is not None}
+        self._latest = set(self._scans[-1][2])  # this scan's reports, which no track may begin with
         start = [_Track(t.reports, t.anchor, t.label) for t in self._tracks]
         best, best_score = start, sum(self._score(t) for t in start)
         moves = (self._birth, self._death, self._split, self._merge, self._extension, self._reduction,
                  self._update, self._switch)
+        birth, score_of, randrange, random_ = self._birth, self._score, self._rng.randrange, self._rng.random
         for _ in range(self.config.chains):
+            self._now: dict = {}
             tracks = [_Track(t.reports, t.anchor, t.label) for t in start]
+            scores = [score_of(t) for t in tracks]  # in step with tracks
             used = {r for t in tracks for r in t.reports}
             free = {rid for _, _, ids in self._scans for rid in ids} - used
-            score = sum(self._score(t) for t in tracks)
+            score = sum(scores)
             for _ in range(self.config.n_mc):
-                move = self._birth if not tracks else moves[self._rng.randrange(8)]
+                move = birth if not tracks else moves[randrange(8)]
                 proposal = move(tracks, free)
                 if proposal is None:
                     continue
                 removed, added, log_ratio = proposal
-                delta = sum(self._score(t) for t in added) - sum(self._score(tracks[i]) for i in removed)
+                added_scores = [score_of(t) for t in added]
+                delta = sum(added_scores) - sum([scores[i] for i in removed])
                 log_a = delta + log_ratio
-                if log_a >= 0 or self._rng.random() < math.exp(log_a):
+                if log_a >= 0 or random_() < math.exp(log_a):
                     for i in sorted(removed, reverse=True):
                         free.update(tracks[i].reports)
-                        del tracks[i]
+                        del tracks[i], scores[i]
                     for t in added:
                         free.difference_update(t.reports)
-                        tracks.append(t)
+                    tracks += added
+                    scores += added_scores
                     score += delta
+                    self._now = {}
                     if score > best_score + 1e-12:
                         best = [_Track(t.reports, t.anchor, t.label) for t in tracks]
                         best_score = score
@@ -451,49 +530,78 @@ class OnlineMCMCDA:
         xi_r = 1.0 if k_after == 0 else 1.0 / 8
         return math.log(xi_r) + reverse_q - math.log(xi_f) - forward_q
 
-    def _birth(self, tracks, free):
-        starts = [r for r in free if self._reports[r].scan < self._scan]
-        if not starts:
-            return None
-        starts.sort()
-        first = self._rng.choice(starts)
-        rep = self._reports[first]
-        rest, logq = self._extend((rep.scan, rep.t, rep.x, rep.y, max(rep.rx, rep.ry)), free - {first}, must=True)
-        if not rest:
-            return None
-        new = _Track((first, *rest))
-        deaths = sum(1 for t in tracks if t.anchor is None) + 1
-        return [], [new], self._ratio_k(len(tracks), len(tracks) + 1, -math.log(len(starts)) + logq, -math.log(deaths))
+    # Most proposals are rejected (over 95 %), so the chain's state (its tracks and free reports)
+    # rarely changes: what the moves derive from it alone, including a proposal once its random
+    # draws are made, is kept in self._now, which _run_chain empties when the state changes.
 
-    def _death(self, tracks, free):
-        mortal = [i for i, t in enumerate(tracks) if t.anchor is None]
-        if not mortal:
-            return None
-        i = self._rng.choice(mortal)
-        t = tracks[i]
-        freed = free | set(t.reports)
-        starts = sum(1 for r in freed if self._reports[r].scan < self._scan)
-        rep = self._reports[t.reports[0]]
-        reverse = -math.log(starts) + self._path_logq((rep.scan, rep.t, rep.x, rep.y, max(rep.rx, rep.ry)), list(t.reports[1:]), freed - {t.reports[0]}, True)
-        return [i], [], self._ratio_k(len(tracks), len(tracks) - 1, -math.log(len(mortal)), reverse)
+    def _once(self, key, make, *args):
+        """``make(*args)``, computed once per state of the chain under ``key``."""
+        out = self._now.get(key, _MISSING)
+        if out is _MISSING:
+            out = self._now[key] = make(*args)
+        return out
+
+    def _starts(self, free):
+        """The free reports a new track may begin with, in order."""
+        return self._once("starts", lambda: sorted(free.difference(self._latest)))
+
+    def _mortal(self, tracks):
+        """Indices of the tracks without an anchor, which a death may remove."""
+        return self._once("mortal", lambda: [i for i, t in enumerate(tracks) if t.anchor is None])
+
+    @staticmethod
+    def _can_split(t: _Track) -> bool:
+        return len(t.reports) >= (2 if t.anchor is not None else 4)
 
     def _splittable(self, tracks):
-        return [i for i, t in enumerate(tracks) if len(t.reports) >= (2 if t.anchor is not None else 4)]
+        """Indices of the tracks a split may cut."""
+        return self._once("splittable", lambda: [i for i, t in enumerate(tracks) if self._can_split(t)])
 
     def _mergeable(self, tracks):
         """(i, j) pairs, in order, where track j (no anchor) may continue track i."""
+        return self._once("mergeable", self._merge_pairs, tracks)
+
+    def _merge_pairs(self, tracks):
         heads = [(j, b.reports[0]) for j, b in enumerate(tracks) if b.anchor is None]
         pairs = []
-        if not heads:
-            return pairs
         for i, a in enumerate(tracks):
-            end = self._end_of(a)
-            if end is None:
-                continue
-            for j, first in heads:
-                if i != j and self._follows(*end, first):
-                    pairs.append((i, j))
+            follow = self._gate(a).all
+            pairs += [(i, j) for j, first in heads if first in follow and i != j]
         return pairs
+
+    def _merges(self, tracks) -> int:
+        """How many pairs ``_mergeable`` would list for ``tracks``, a proposed state (a track's
+        first report never follows its own last one, so i ≠ j needs no test)."""
+        firsts = {b.reports[0] for b in tracks if b.anchor is None}
+        if not firsts:
+            return 0
+        return sum(len(firsts.intersection(self._gate(a).all)) for a in tracks)
+
+    def _birth(self, tracks, free):
+        starts = self._starts(free)
+        if not starts:
+            return None
+        first = self._rng.choice(starts)
+        rest, logq = self._extend(self._gates[first], free, must=True)
+        if not rest:
+            return None
+        new = _Track((first, *rest))
+        deaths = len(self._mortal(tracks)) + 1
+        return [], [new], self._ratio_k(len(tracks), len(tracks) + 1, -math.log(len(starts)) + logq, -math.log(deaths))
+
+    def _death(self, tracks, free):
+        mortal = self._mortal(tracks)
+        if not mortal:
+            return None
+        i = self._rng.choice(mortal)
+        return self._once(("death", i), self._death_of, tracks, free, i)
+
+    def _death_of(self, tracks, free, i: int):
+        t = tracks[i]
+        freed = free.union(t.reports)
+        starts = len(self._starts(free)) + len(t.reports) - len(self._latest.intersection(t.reports))
+        reverse = -math.log(starts) + self._path_logq(self._gates[t.reports[0]], t.reports[1:], freed, True)
+        return [i], [], self._ratio_k(len(tracks), len(tracks) - 1, -math.log(len(self._mortal(tracks))), reverse)
 
     def _split(self, tracks, free):
         choices = self._splittable(tracks)
@@ -502,12 +610,15 @@ class OnlineMCMCDA:
         i = self._rng.choice(choices)
         t = tracks[i]
         lo = 0 if t.anchor is not None else 2
-        points = list(range(lo, len(t.reports) - 1))  # first part keeps reports[:r]
+        points = range(lo, len(t.reports) - 1)  # first part keeps reports[:r]
         r = self._rng.choice(points)
+        return self._once(("split", i, r), self._split_at, tracks, i, r, len(points))
+
+    def _split_at(self, tracks, i: int, r: int, points: int):
+        t = tracks[i]
         head, tail = _Track(t.reports[:r], t.anchor, t.label), _Track(t.reports[r:])
-        after = [x for k, x in enumerate(tracks) if k != i] + [head, tail]
-        merges = len(self._mergeable(after))
-        forward = -math.log(len(choices)) - math.log(len(points))
+        merges = self._merges(tracks[:i] + tracks[i + 1:] + [head, tail])
+        forward = -math.log(len(self._splittable(tracks))) - math.log(points)
         return [i], [head, tail], self._ratio_k(len(tracks), len(tracks) + 1, forward, -math.log(max(merges, 1)))
 
     def _merge(self, tracks, free):
@@ -515,19 +626,20 @@ class OnlineMCMCDA:
         if not pairs:
             return None
         i, j = self._rng.choice(pairs)
+        return self._once(("merge", i, j), self._merged, tracks, i, j)
+
+    def _merged(self, tracks, i: int, j: int):
         a, b = tracks[i], tracks[j]
         merged = _Track(a.reports + b.reports, a.anchor, a.label)
-        after = [x for k, x in enumerate(tracks) if k not in (i, j)] + [merged]
-        splits = self._splittable(after)
+        splits = len(self._splittable(tracks)) - self._can_split(a) - self._can_split(b) + self._can_split(merged)
         lo = 0 if merged.anchor is not None else 2
-        reverse = -math.log(max(len(splits), 1)) - math.log(max(len(merged.reports) - 1 - lo, 1))
-        return [i, j], [merged], self._ratio_k(len(tracks), len(tracks) - 1, -math.log(len(pairs)), reverse)
+        reverse = -math.log(max(splits, 1)) - math.log(max(len(merged.reports) - 1 - lo, 1))
+        return [i, j], [merged], self._ratio_k(len(tracks), len(tracks) - 1, -math.log(len(self._mergeable(tracks))), reverse)
 
     def _extension(self, tracks, free):
         i = self._rng.randrange(len(tracks))
         t = tracks[i]
-        end = self._end_of(t)
-        added, logq = self._extend(end, free, must=True)
+        added, logq = self._extend(self._gate(t), free, must=True)
         if not added:
             return None
         new = _Track(t.reports + tuple(added), t.anchor, t.label)
@@ -537,52 +649,67 @@ class OnlineMCMCDA:
 
     def _cut(self, tracks, keep: int):
         """A random track and a random cut in its window reports, leaving at least ``keep`` of
-        them before the cut when it has no anchor: (index, track, lowest cut, cut), or None."""
+        them before the cut when it has no anchor: (index, cut), or None."""
         i = self._rng.randrange(len(tracks))
         t = tracks[i]
         lo = 0 if t.anchor is not None else keep
         if len(t.reports) <= lo:
             return None
-        return i, t, lo, self._rng.randrange(lo, len(t.reports))
+        return i, self._rng.randrange(lo, len(t.reports))
 
     def _reduction(self, tracks, free):
         cut = self._cut(tracks, keep=2)
         if cut is None:
             return None
-        i, t, lo, r = cut
+        return self._once(("reduction", *cut), self._reduced, tracks, free, *cut)
+
+    def _reduced(self, tracks, free, i: int, r: int):
+        t = tracks[i]
+        lo = 0 if t.anchor is not None else 2
         new = _Track(t.reports[:r], t.anchor, t.label)
-        freed = free | set(t.reports[r:])
-        reverse = -math.log(len(tracks)) + self._path_logq(self._end_of(new), list(t.reports[r:]), freed, True)
+        freed = free.union(t.reports[r:])
+        reverse = -math.log(len(tracks)) + self._path_logq(self._gate(new), t.reports[r:], freed, True)
         return [i], [new], self._ratio_k(len(tracks), len(tracks), -math.log(len(tracks)) - math.log(len(t.reports) - lo), reverse)
 
     def _update(self, tracks, free):
         cut = self._cut(tracks, keep=1)
         if cut is None:
             return None
-        i, t, _, r = cut
-        keep = _Track(t.reports[:r], t.anchor, t.label)
-        end = self._end_of(keep)
-        freed = free | set(t.reports[r:])
-        added, logq = self._extend(end, freed, must=True)
+        i, r = cut
+        t = tracks[i]
+        gate, freed, reverse = self._once(("update", i, r), self._updatable, tracks, free, i, r)
+        added, logq = self._extend(gate, freed, must=True)
         if not added or tuple(added) == t.reports[r:]:
             return None
         new = _Track(t.reports[:r] + tuple(added), t.anchor, t.label)
-        reverse = self._path_logq(end, list(t.reports[r:]), freed, True)
         return [i], [new], reverse - logq
+
+    def _updatable(self, tracks, free, i: int, r: int):
+        """What an update of track i from its report r on starts from: (the gate to extend, the
+        free reports then, log q of proposing its present reports from r on)."""
+        t = tracks[i]
+        gate = self._gate(_Track(t.reports[:r], t.anchor))
+        freed = free.union(t.reports[r:])
+        return gate, freed, self._path_logq(gate, t.reports[r:], freed, True)
 
     def _switch(self, tracks, free):
         if len(tracks) < 2:
             return None
         i, j = self._rng.sample(range(len(tracks)), 2)
-        a, b = tracks[i], tracks[j]
-        scans_a = [self._reports[r].scan for r in a.reports]
-        scans_b = [self._reports[r].scan for r in b.reports]
-        both = sorted(set(scans_a) | set(scans_b))
+        scans_a, scans_b, both = self._once(("scans", i, j), self._switch_scans, tracks[i], tracks[j])
         if len(both) < 2:
             return None
         cut = self._rng.choice(both[:-1])  # switch the reports after scan ``cut``
-        ka = sum(1 for s in scans_a if s <= cut)
-        kb = sum(1 for s in scans_b if s <= cut)
+        return self._once(("switch", i, j, cut), self._switched, tracks, i, j, bisect_right(scans_a, cut), bisect_right(scans_b, cut))
+
+    def _switch_scans(self, a: _Track, b: _Track):
+        """The scans of a's and of b's reports (increasing), and those of both."""
+        scans_a = [self._gates[r].scan for r in a.reports]
+        scans_b = [self._gates[r].scan for r in b.reports]
+        return scans_a, scans_b, sorted({*scans_a, *scans_b})
+
+    def _switched(self, tracks, i: int, j: int, ka: int, kb: int):
+        a, b = tracks[i], tracks[j]
         new_a = _Track(a.reports[:ka] + b.reports[kb:], a.anchor, a.label)
         new_b = _Track(b.reports[:kb] + a.reports[ka:], b.anchor, b.label)
         if new_a.reports == a.reports or not (self._valid(new_a) and self._valid(new_b)):
