@@ -1,12 +1,12 @@
 """The secure profile (deploy/secure/) on a real router on loopback: certificates, mutual TLS,
-per-role access control, and the whole stack under it giving the offline rows; and the same on
-the router mesh of ``up --regions`` (region routers that show each other the router certificate)."""
+per-role access control, and the whole stack under it giving the offline rows; and the policies
+across a region router of ``up --regions`` (region routers that show each other the router
+certificate; the whole secure mesh of ``up --regions --secure`` runs in test_regions_live.py)."""
 
 from __future__ import annotations
 
 import ipaddress
 import json
-import os
 import stat
 import subprocess
 import sys
@@ -435,68 +435,3 @@ def test_up_secure_with_regions_needs_a_router_certificate_that_names_the_region
                      "--listen", "tls/127.0.0.1:1"]) == 2
     err = capsys.readouterr().err
     assert "router.pem does not name 127.0.0.2" in err and "--roles router --ca" in err
-
-
-@pytest.fixture(scope="module")
-def region_field(tmp_path_factory) -> Path:
-    """A 2 × 2-region DARPA-style field (as tests/test_regions_live.py's) and its offline
-    ``track --regions`` rows (regions.csv)."""
-    folder = tmp_path_factory.mktemp("regions")
-    for args in (("simulate", "darpa-grid", "--out", str(folder / "field"), "--regions", "2x2", "--seed", "21"),
-                 ("track", str(folder / "field"), "--tracker", "mcmcda", "--regions", "--out",
-                  str(folder / "regions.csv"))):
-        result = bintrack(*args)
-        assert result.returncode == 0, result.stderr[-3000:]
-    return folder
-
-
-# Zenoh's own log, turned on in every process of the stack (up's, with the hub router, and each
-# service's and region router's) from RUST_LOG; it writes to stdout
-ZENOH_LOG_HOOK = """import os
-if os.environ.get("RUST_LOG"):
-    import zenoh
-    zenoh.try_init_log_from_env()
-"""
-TROUBLE = ("Traceback", "bad payloads", "too large", "restarted", "exited with", "killed by", " gone", "lost its router",
-           "unknown region", "holding event time", "PRIVATE KEY")
-# what of Zenoh's warnings and errors would be the profile's: a refused certificate or handshake, the
-# access control (others are not: a client retrying its router before it listens, a late reply)
-SECURITY_TROUBLE = ("certificate", "Certificate", "handshake", "access_control", "unauthorized", "authentication")
-
-
-def test_up_secure_with_regions_gives_the_offline_rows_and_no_link_falls_to_default_deny(certs, region_field,
-                                                                                         tmp_path):
-    """``up --regions 4 --secure``: four TLS routers on 127.0.0.2–5 meshed with up's own under the
-    profile's access control, the merge in its role; the recorded ``tracks`` are the offline
-    ``track --regions`` rows. Zenoh's log (INFO) names every link, router links included, that
-    matched no ACL subject and so fell to default deny: there is none, nor a warning or error about
-    a certificate or the access control. (Zenoh 1.10 logs a denied message at TRACE only; that
-    each role's messages pass is what the rows and the policy tests above show.)"""
-    hook = tmp_path / "hook"
-    hook.mkdir()
-    (hook / "sitecustomize.py").write_text(ZENOH_LOG_HOOK)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (str(hook), os.environ.get("PYTHONPATH")) if p),
-           "RUST_LOG": "info", "NO_COLOR": "1"}
-    recording = tmp_path / "secure-regions.mcap"
-    up = subprocess.run([sys.executable, "-m", "bintrack.cli", "up", str(region_field / "field"), "--tracker", "mcmcda",
-                         "--regions", "4", "--secure", "--certs", str(certs), "--listen", f"tls/127.0.0.1:{free_port()}",
-                         "--speed", "0", "--exit-at-end", "--no-view", "--record", str(recording)],
-                        capture_output=True, text=True, cwd=REPO, env=env, timeout=300)
-    assert up.returncode == 0, up.stderr[-3000:]
-    for i, region in enumerate(REGIONS):
-        assert f"router {region} (" in up.stderr and f"listening on tls/127.0.0.{i + 2}:" in up.stderr
-    running = up.stderr.partition("up: the end of the replay has been processed")[0]  # before the stop
-    assert not [line for line in running.splitlines() if any(t in line for t in TROUBLE)], running[-3000:]
-    zenoh_log = up.stdout
-    # the hook is on: a session per process at least (up's, 4 routers, 8 region services, merge, recorder, replay)
-    assert zenoh_log.count("zenoh::net::runtime: Using ZID") >= 1 + 4 + 4 * 2 + 3, zenoh_log[-3000:]
-    assert "did not match any configured ACL subject" not in zenoh_log
-    warnings = [line for line in zenoh_log.splitlines() if " WARN " in line or " ERROR " in line]
-    assert not [line for line in warnings if any(t in line for t in SECURITY_TROUBLE)], warnings
-    exported = tmp_path / "live.csv"
-    result = bintrack("export", str(recording), "--what", "tracks", "--out", str(exported))
-    assert result.returncode == 0, result.stderr
-    live, offline = read_tracks(exported), read_tracks(region_field / "regions.csv")
-    assert len(offline) > 100
-    assert [(r.t, r.track) for r in live] == [(r.t, r.track) for r in offline]
-    assert max(abs(a.x - b.x) + abs(a.y - b.y) for a, b in zip(live, offline)) < 1e-6
