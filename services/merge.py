@@ -20,9 +20,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import math
 import sys
-import time
 from collections import deque
 
 import zenoh
@@ -31,7 +29,6 @@ from bintrack.argtypes import positive_float
 from bintrack.keys import parse_key
 from bintrack.live.bus import Service, add_bus_arguments, log, service_main
 from bintrack.live.tracks_queryable import answer_tracks_query
-from bintrack.live.transition_intake import CHECKPOINT_INTERVAL, CHECKPOINT_SPAN
 from bintrack.messages import Clock, MessageError, TrackSet, decode
 from bintrack.regions import RegionMap
 from bintrack.trackers.multi.region_merge import MergeConfig, RegionMerge
@@ -50,7 +47,6 @@ class Merge(Service):
         self.merge = RegionMerge(self.regions, MergeConfig(gate=self.args.gate, handover=self.args.handover))
         self.latest: TrackSet | None = None
         self.history: deque[TrackSet] = deque(maxlen=TRACKS_HISTORY)
-        self.checkpointed_at, self.checkpointed_t = -math.inf, -math.inf
         resumed = self.resume()
         self.serve(self.keys.tracks(), self.on_tracks_query)
         self.subscribe(self.keys.region_tracks(), self.on_region_tracks)
@@ -83,15 +79,6 @@ class Merge(Service):
         self.merge, self.latest = merge, latest
         self.history.extend(history)
         return True
-
-    def checkpoint(self, t: float) -> None:
-        """Save the merge's state every CHECKPOINT_INTERVAL s of wall clock or CHECKPOINT_SPAN s
-        of event time (``t``, s), if ``--state-dir`` is set."""
-        now = time.monotonic()
-        if self.checkpoint_path() is not None and (now - self.checkpointed_at >= CHECKPOINT_INTERVAL
-                                                   or t - self.checkpointed_t >= CHECKPOINT_SPAN):
-            self.save_checkpoint((self.merge, self.latest, list(self.history)))
-            self.checkpointed_at, self.checkpointed_t = now, t
 
     def fetch_region_tracks(self, after: float) -> list[tuple[str, TrackSet]]:
         """(region, scan) of every scan later than ``after`` (s) that the regions' base stations
@@ -150,7 +137,7 @@ class Merge(Service):
             self.history.append(tracks)
             self.publish(self.keys.tracks(), tracks)
         if merged:
-            self.checkpoint(merged[-1].t)
+            self.save_checkpoint_throttled(merged[-1].t, lambda: (self.merge, self.latest, list(self.history)))
 
     def on_tracks_query(self, query: zenoh.Query) -> None:
         answer_tracks_query(query, self.keys.tracks(), self.latest, self.history)

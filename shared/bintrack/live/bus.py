@@ -52,6 +52,8 @@ ACK_WAIT = 0.005  # … or s of wall clock since the last report, whichever come
 ROUTE_CACHE = 65536  # distinct keys whose handlers are remembered (a bound against key floods)
 GUARDED_KINDS = frozenset({"clock", "eos", "progress", "done"})  # what the control guard checks
 PARENT_CHECK = 1.0  # s between checks that the supervisor is still there
+CHECKPOINT_INTERVAL = 1.0  # s of wall clock between two throttled checkpoints …
+CHECKPOINT_SPAN = 8.0  # … or s of event time, whichever comes first (well inside the sensors' HISTORY_SPAN)
 
 log = logging.getLogger("bintrack")
 
@@ -298,6 +300,8 @@ class Service:
         self._progress: Clock | None = None  # a progress report not sent yet
         self._unreported = 0
         self._reported_at = -math.inf
+        self._checkpointed_at = -math.inf  # monotonic time of the last throttled checkpoint
+        self._checkpointed_t = -math.inf  # event time (s) it was taken at
         self._progress_timer: asyncio.TimerHandle | None = None
         self.exit_status = 0
         self.routers: set[str] = set()  # the routers this session is connected to
@@ -557,6 +561,17 @@ class Service:
         path = self.checkpoint_path()
         if path is not None:
             checkpoint.save_checkpoint(path, {"run": self.run_id, "state": state})
+
+    def save_checkpoint_throttled(self, t: float, state: Callable[[], Any]) -> None:
+        """Save ``state()`` (as :meth:`save_checkpoint`) at event time ``t`` (s) if ``--state-dir``
+        is set and CHECKPOINT_INTERVAL s of wall clock or CHECKPOINT_SPAN s of event time passed
+        since the last one: for a state that takes long to save (a tracker's), whose outputs a
+        restarted instance sends again and the receivers drop as duplicates."""
+        now = time.monotonic()
+        if self.checkpoint_path() is not None and (now - self._checkpointed_at >= CHECKPOINT_INTERVAL
+                                                   or t - self._checkpointed_t >= CHECKPOINT_SPAN):
+            self.save_checkpoint(state())
+            self._checkpointed_at, self._checkpointed_t = now, t
 
     def _watch_router(self) -> None:
         """Log the loss and return of the router (Zenoh transport events). While it is lost the

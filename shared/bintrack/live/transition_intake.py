@@ -11,7 +11,6 @@ watermark: exact with no fixed hold); a subclass publishes what the tracker retu
 from __future__ import annotations
 
 import math
-import time
 
 import zenoh
 
@@ -22,8 +21,6 @@ from bintrack.pipeline import TrackerDriver
 from bintrack.trackers import Tracker
 from bintrack.live.sequence_checks import SequenceCheck, SourceCheck, UpstreamWatermark
 
-CHECKPOINT_INTERVAL = 1.0  # s of wall clock between two checkpoints …
-CHECKPOINT_SPAN = 8.0  # … or s of event time, whichever comes first (well inside the sensors' HISTORY_SPAN)
 DEPARTED_HOLD = 2.0  # s of event time an upstream instance that went away still holds the watermark
 RELEASED_NONE = -1.7976931348623157e308  # a progress report's "released nothing yet" (finite: inf is no JSON)
 
@@ -45,8 +42,6 @@ class TransitionConsumer(Service):
         self.fetched: set[tuple[str | None, int | None]] = set()  # fetched from state; may still arrive
         self.newest: dict[str, float] = {}  # event time of the newest transition taken, per sensor
         self.restarts: set[str | None] = set()  # sources seen counting from 1 again (logged once)
-        self.checkpointed_at = -math.inf  # monotonic time of the last checkpoint
-        self.checkpointed_tick = -math.inf  # event time (s) of the clock tick last checkpointed
         checkpoint = self.load_checkpoint()
         if checkpoint is not None:
             try:
@@ -268,15 +263,9 @@ class TransitionConsumer(Service):
         self.release(report=False)
         # after the outputs went out, before acknowledging: a restart resumes at this tick and
         # fetches the transitions after it from the sensors' state queryables. A tracker's state
-        # can take tens of ms to save (all of a peer agent's trackers), so every CHECKPOINT_INTERVAL
-        # s of wall clock or CHECKPOINT_SPAN s of event time, whichever comes first; the outputs a
-        # restarted instance sends again are dropped as duplicates by the receivers.
-        now = time.monotonic()
-        if self.checkpoint_path() is not None and (now - self.checkpointed_at >= CHECKPOINT_INTERVAL
-                                                   or tick.t - self.checkpointed_tick >= CHECKPOINT_SPAN):
-            self.save_checkpoint((tick.t, self.driver, self.sequence, self.sources, self.fetched, self.newest,
-                                  self.restarts, self.checkpoint_extra()))
-            self.checkpointed_at, self.checkpointed_tick = now, tick.t
+        # can take tens of ms to save (all of a peer agent's trackers), so it is throttled.
+        self.save_checkpoint_throttled(tick.t, lambda: (tick.t, self.driver, self.sequence, self.sources, self.fetched,
+                                                        self.newest, self.restarts, self.checkpoint_extra()))
         self.report_released()
 
     def on_finish(self, t: float) -> None:
