@@ -21,15 +21,19 @@ from conftest import REPO, free_port
 class RouterProcess:
     """A router of the mesh in a process of its own; its log in a file."""
 
-    def __init__(self, name: str, listen: str, connect: list[str], log_dir: Path, config: str | None = None):
+    def __init__(self, name: str, listen: str, connect: list[str], log_dir: Path, config: str | None = None,
+                 argv: list[str] | None = None):
+        """``argv``: the router's whole command line (e.g. as ``bintrack up`` builds it) instead
+        of one made of ``listen``, ``connect`` and ``config``."""
         self.name, self.listen = name, listen
         self.log_path = log_dir / f"router-{name}.log"
         self._log = open(self.log_path, "w")
-        argv = [sys.executable, "-m", "bintrack.services.router", "-l", listen, "--name", name]
-        if config is not None:
-            argv += ["-c", config]
-        for peer in connect:
-            argv += ["-e", peer]
+        if argv is None:
+            argv = [sys.executable, "-m", "bintrack.services.router", "-l", listen, "--name", name]
+            if config is not None:
+                argv += ["-c", config]
+            for peer in connect:
+                argv += ["-e", peer]
         self.proc = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT, cwd=REPO)
         self.wait_logged("listening on", "start")
 

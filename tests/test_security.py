@@ -27,6 +27,7 @@ from bintrack.live.stack import region_stack_commands
 from bintrack.messages import Clock, Track, TrackSet, encode
 
 from conftest import HUNG, REPO, free_port
+from test_mesh import RouterProcess
 
 DARPA3 = REPO / "datasets" / "darpa-grid-3"
 NET = "bintrack/sec"
@@ -160,9 +161,11 @@ def test_each_role_may_do_only_what_its_policy_says(certs, secure_router):
         observer.close()
 
 
-def test_a_client_without_a_certificate_or_from_another_ca_cannot_connect(certs, secure_router, tmp_path):
+def assert_only_genuine_clients_connect(certs: Path, endpoint: str, tmp_path: Path) -> None:
+    """A client of the TLS router at ``endpoint`` gets in with a certificate of ``certs``' CA
+    only: not without one, not with another CA's, not over plain TCP."""
     # TLS with the right CA but no certificate of its own
-    config = client_config("viewer", certs, [secure_router])
+    config = client_config("viewer", certs, [endpoint])
     config.insert_json5("transport/link/tls/connect_certificate", "null")
     config.insert_json5("transport/link/tls/connect_private_key", "null")
     with pytest.raises(zenoh.ZError):
@@ -171,12 +174,16 @@ def test_a_client_without_a_certificate_or_from_another_ca_cannot_connect(certs,
     other = tmp_path / "other"
     assert cli.main(["certs", "--out", str(other), "--roles", "viewer"]) == 0
     with pytest.raises(zenoh.ZError):
-        zenoh.open(client_config("viewer", other, [secure_router]))
+        zenoh.open(client_config("viewer", other, [endpoint]))
     # plain TCP to the TLS port
     with pytest.raises(zenoh.ZError):
-        zenoh.open(plain_client_config(["tcp/" + secure_router.removeprefix("tls/")]))
+        zenoh.open(plain_client_config(["tcp/" + endpoint.removeprefix("tls/")]))
     # and the genuine viewer can
-    zenoh.open(client_config("viewer", certs, [secure_router])).close()
+    zenoh.open(client_config("viewer", certs, [endpoint])).close()
+
+
+def test_a_client_without_a_certificate_or_from_another_ca_cannot_connect(certs, secure_router, tmp_path):
+    assert_only_genuine_clients_connect(certs, secure_router, tmp_path)
 
 
 def test_the_secure_stack_gives_the_offline_rows(certs, tmp_path):
@@ -287,37 +294,8 @@ def test_every_role_has_a_client_config_a_subject_and_a_policy():
     assert {role_of(c.name) for c in services} <= set(certs_command.ROLES)
 
 
-class LoggedProcess:
-    """A process whose stderr lines are read on a thread, so that a test waits on them (events)."""
-
-    def __init__(self, argv: list[str]):
-        self.proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO)
-        self.lines: list[str] = []
-        self.changed = threading.Condition()
-        self.reader = threading.Thread(target=self._read, daemon=True)
-        self.reader.start()
-
-    def _read(self) -> None:
-        for line in self.proc.stderr:
-            with self.changed:
-                self.lines.append(line)
-                self.changed.notify_all()
-
-    def wait_for(self, *texts: str, timeout: float = HUNG) -> None:
-        """Until one line holds every one of ``texts``."""
-        with self.changed:
-            assert self.changed.wait_for(lambda: any(all(t in line for t in texts) for line in self.lines), timeout), \
-                "".join(self.lines)[-3000:]
-
-    def stop(self) -> int:
-        self.proc.terminate()
-        code = self.proc.wait(timeout=30)
-        self.reader.join(timeout=30)
-        return code
-
-
 @pytest.fixture
-def region_mesh(certs):
+def region_mesh(certs, tmp_path):
     """The hub router (in this process) and region r0c0's router on 127.0.0.2 as ``up --secure
     --regions`` starts it (a ``bintrack.services.router`` process with the router certificate, meshed
     with the hub); yields (hub endpoint, region endpoint) once the two routers are linked."""
@@ -327,10 +305,11 @@ def region_mesh(certs):
     stack = secure_commands(region_stack_commands(regions=["r0c0"], endpoint=hub_endpoint, net="sec"), certs)
     command = next(c for c in stack if c.name == "router")
     assert "tls/127.0.0.2:" + str(port) in command.args
-    router = LoggedProcess(command.argv(sys.executable))
+    region = f"tls/127.0.0.2:{port}"
+    router = RouterProcess("r0c0", region, [hub_endpoint], tmp_path, argv=command.argv(sys.executable))
     try:
-        router.wait_for("router r0c0: router ", " connected")  # the hub, over mutual TLS
-        yield hub_endpoint, f"tls/127.0.0.2:{port}"
+        router.wait_logged("router r0c0: router ", "the hub, over mutual TLS")
+        yield hub_endpoint, region
     finally:
         assert router.stop() == 0
         hub.close()
@@ -411,19 +390,7 @@ def test_across_a_region_router_the_merge_and_a_region_base_station_may_do_only_
 
 
 def test_a_region_router_refuses_a_client_without_a_certificate(certs, region_mesh, tmp_path):
-    _, region = region_mesh
-    config = client_config("viewer", certs, [region])
-    config.insert_json5("transport/link/tls/connect_certificate", "null")
-    config.insert_json5("transport/link/tls/connect_private_key", "null")
-    with pytest.raises(zenoh.ZError):
-        zenoh.open(config)
-    other = tmp_path / "other"
-    assert cli.main(["certs", "--out", str(other), "--roles", "viewer"]) == 0
-    with pytest.raises(zenoh.ZError):
-        zenoh.open(client_config("viewer", other, [region]))
-    with pytest.raises(zenoh.ZError):
-        zenoh.open(plain_client_config(["tcp/" + region.removeprefix("tls/")]))
-    zenoh.open(client_config("viewer", certs, [region])).close()
+    assert_only_genuine_clients_connect(certs, region_mesh[1], tmp_path)
 
 
 def test_up_secure_with_regions_needs_a_router_certificate_that_names_the_region_routers(tmp_path, monkeypatch,
