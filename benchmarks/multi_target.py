@@ -145,6 +145,10 @@ VARIANTS: dict[str, dict] = {
     "birth3e-4": {"mcmcda": {"birth_rate": 3e-4}},
     "expected0.5": {"fusion": {"expected_gain": 0.5}},
     "min_gain2": {"fusion": {"min_gain": 2.0}},
+    "split6": {"fusion": {"expected_split_gain": 6.0}},
+    "nosplit-expected": {"fusion": {"expected_split_gain": float("inf")}},
+    "shared-before": {"fusion": {"shared_speed": 0.5, "shared_age": 6, "shared_edge": 1.0}},
+    "issue21-before": {"fusion": {"expected_split_gain": float("inf"), "shared_speed": 0.5, "shared_age": 6, "shared_edge": 1.0}},
 }
 
 

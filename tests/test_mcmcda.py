@@ -67,6 +67,8 @@ def test_fewer_detections_than_the_threshold_give_no_report():
 def test_fit_needs_a_gain_and_an_edge_margin_of_at_least_zero():
     with pytest.raises(CommandError, match="min_gain"):
         GridFusion(grid_deployment(), FusionConfig(min_gain=-1.0))
+    with pytest.raises(CommandError, match="expected_split_gain"):
+        GridFusion(grid_deployment(), FusionConfig(expected_split_gain=-1.0))
     with pytest.raises(CommandError, match="shared_edge"):
         GridFusion(grid_deployment(), FusionConfig(shared_edge=float("nan")))
 

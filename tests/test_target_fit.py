@@ -52,6 +52,25 @@ def test_a_track_expecting_its_target_lowers_the_bar_for_weak_evidence():
     assert fusion.reports(detecting, away) == []
 
 
+def test_a_tracked_person_and_an_untracked_one_beside_them_are_two_reports():
+    # 7 m apart, 8 m disks: the tracked person's target, free to move within its gate, would
+    # settle between the two and explain both; splitting it gives each person a report
+    deployment = grid_deployment(pd=0.8)
+    people = [(17.0, 21.0), (24.0, 21.0)]
+    tracked = [Expectation(x=17.0, y=21.0, sigma=1.0, vx=1.0, vy=0.0, reports=20, unreported=1)]
+    fusion = GridFusion(deployment)
+    detecting = detecting_near(fusion, deployment, people)
+    reports = fusion.reports(detecting, tracked)
+    assert len(reports) == 2 and not any(r.shared for r in reports)
+    for x, y in people:
+        assert any(near(r, x, y, 1.5) for r in reports)
+    (between,) = GridFusion(deployment, FusionConfig(expected_split_gain=math.inf)).reports(detecting, tracked)
+    assert near(between, 20.5, 21.0, 1.0)
+    # one person alone where the track expects them stays one report
+    alone = detecting_near(fusion, deployment, people[:1])
+    assert len(fusion.reports(alone, tracked)) == 1
+
+
 def test_no_report_for_a_track_whose_target_has_left_the_sensors():
     deployment = grid_deployment()
     fusion = GridFusion(deployment)
@@ -76,10 +95,12 @@ def test_a_track_hidden_in_another_tracks_blob_gets_a_loose_shared_copy():
     assert len(own) == 1 and len(copies) == 1
     assert (copies[0].x, copies[0].y) == (own[0].x, own[0].y)
     assert copies[0].cov[0][0] >= own[0].cov[0][0] + 16.0  # (R/2)² looser: no pull onto the other
-    # two tracks on one person move alike: no copy; nor for tracks too young to trust
-    assert not any(r.shared for r in fusion.reports(detecting, crossing(vx_hidden=1.2)[:1] + [
-        Expectation(x=23.5, y=24.2, sigma=1.0, vx=1.2, vy=0.0, reports=20, unreported=1)]))
-    assert not any(r.shared for r in fusion.reports(detecting, crossing(vx_hidden=-1.2, reports=3)))
+    # two people side by side move alike and get copies too, unless shared_speed asks for
+    # tracks that move differently; no copies for tracks too young to trust
+    alike = crossing(vx_hidden=1.2)[:1] + [Expectation(x=23.5, y=24.2, sigma=1.0, vx=1.2, vy=0.0, reports=20, unreported=1)]
+    assert any(r.shared for r in fusion.reports(detecting, alike))
+    assert not any(r.shared for r in GridFusion(deployment, FusionConfig(shared_speed=0.5)).reports(detecting, alike))
+    assert not any(r.shared for r in fusion.reports(detecting, crossing(vx_hidden=-1.2, reports=2)))
     assert not any(r.shared for r in GridFusion(deployment, FusionConfig(shared=False)).reports(
         detecting, crossing(vx_hidden=-1.2)))
 
@@ -88,9 +109,9 @@ def test_no_shared_copy_near_the_edge_of_the_sensor_field_where_people_leave():
     deployment = grid_deployment()  # sensors on 0..45 m in x and y
     fusion = GridFusion(deployment)
     assert fusion.depth(22.5, 22.5) == 22.5 and fusion.depth(0.0, 30.0) == 0.0 and fusion.depth(-3.0, 30.0) == -3.0
-    at_edge = crossing(vx_hidden=-1.2, x=3.0)  # the hidden track's prediction is 4 m inside
-    detecting = detecting_near(fusion, deployment, [(3.0, 22.5), (4.0, 24.2)])
-    assert [r.shared for r in fusion.reports(detecting, at_edge)] == [False]
+    at_edge = crossing(vx_hidden=-1.2, x=2.0)  # the hidden track's prediction is 3 m inside
+    detecting = detecting_near(fusion, deployment, [(2.0, 22.5), (3.0, 24.2)])
+    assert [r.shared for r in fusion.reports(detecting, at_edge)] == [False]  # under half the 8 m range
     nearer = GridFusion(deployment, FusionConfig(shared_edge=0.25))  # 2 m of the 8 m range
     assert [r.shared for r in nearer.reports(detecting, at_edge)] == [False, True]
     line = Deployment(name="line", units="m", region=Region(xmin=-5, ymin=-5, xmax=50, ymax=5),

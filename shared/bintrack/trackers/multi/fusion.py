@@ -54,6 +54,8 @@ class GridFusion:
             raise CommandError(f"fusion cell size must be positive, got {config.cell}")
         if not config.min_gain >= 0:
             raise CommandError(f"fusion min_gain must be at least 0 nats, got {config.min_gain}")
+        if not config.expected_split_gain >= 0:
+            raise CommandError(f"fusion expected_split_gain must be at least 0 nats, got {config.expected_split_gain}")
         if not config.shared_edge >= 0:
             raise CommandError(f"fusion shared_edge must be at least 0 sensing ranges, got {config.shared_edge}")
         if config.threshold < 1:

@@ -33,19 +33,23 @@ class FusionConfig:
     """"fit": the least support, nats, for a target placed where a track expects one"""
     expected_sigmas: float = 3.0
     """"fit": an expected target may sit within this many standard deviations of the prediction"""
+    expected_split_gain: float = 4.0
+    """"fit": the least gain, nats, for which a target placed where a track expects one is split
+    in two, the track's target (still within its gate) and a new one; ``inf``: never. Higher than
+    ``min_gain``, since the track's target was already judged supported"""
     split: bool = True
-    """"fit": try replacing each new target by two"""
+    """"fit": try replacing each target by two"""
     shared: bool = True
     """"fit": copy a report for an established track hidden in another track's blob"""
-    shared_speed: float = 0.5
+    shared_speed: float = 0.0
     """the least difference in velocity, m/s (converted to the deployment's units), between the
-    hidden track and the report's"""
-    shared_age: int = 6
+    hidden track and the report's (0: none; two people walking side by side move alike)"""
+    shared_age: int = 3
     """reports both tracks must have taken before a copy is made"""
     shared_gap: float = 1.0
     """a copy is made when the hidden track's prediction is within this multiple of the
     sensing range of the report"""
-    shared_edge: float = 1.0
+    shared_edge: float = 0.5
     """no copy for a track predicted within this multiple of the sensing range of the edge of
     the sensor field (the sensors' convex hull): there a person with no support of their own
     has as likely left"""

@@ -27,7 +27,10 @@ a target adds the weights of the sensors it covers that no other target covers (
    threshold). After each placement, every target moves in turn to its best cell given the
    others (coordinate ascent on ℓ).
 3. **Splits.** A new target is replaced by two if that raises ℓ by ``min_gain``. This finds two
-   people whose disks overlap, which the greedy step sees as one.
+   people whose disks overlap, which the greedy step sees as one. A track's target is split in
+   the same way, one of the two staying within its gate, if that raises ℓ by
+   ``expected_split_gain``. Free to move within 3σ, it would otherwise settle between its
+   person and an untracked one beside them (6–7 m apart, 8 m disks) and explain both.
 4. **Pruning.** A target whose gain has fallen below its threshold, once the others have moved,
    is dropped.
 5. **Reports.** A target's report is the mean and covariance of its cell under its own gain,
@@ -37,7 +40,8 @@ a target adds the weights of the sensors it covers that no other target covers (
    nearby report, marked ``shared``, when all of these hold:
    - its prediction lies within one sensing range of that report;
    - the report was placed for another track;
-   - the two tracks have moved differently (by at least ``shared_speed``, m/s);
+   - the two tracks have moved differently by at least ``shared_speed``, m/s (0 by default:
+     two people walking side by side move alike);
    - both are established (at least ``shared_age`` reports);
    - it was reported in the previous scan;
    - its prediction is at least ``shared_edge`` sensing ranges inside the sensor field (the
@@ -45,11 +49,10 @@ a target adds the weights of the sensors it covers that no other target covers (
      likely left, and a copy would keep a departed person's track alive on someone else's
      detections.
 
-   Two people passing each other make one blob of detections, and binary sensors cannot
-   resolve it. The copy keeps the hidden person's track, and its count, alive. The copy has a
+   Two people passing each other, or walking side by side, make one blob of detections, and
+   binary sensors cannot resolve it. The copy keeps the hidden person's track, and its count, alive. The copy has a
    loose covariance (the gap plus (R/2)² per axis), so it does not pull the track onto the
-   other person. Two tracks on one person move alike and get no copies. A new track cannot
-   begin with a copy (``mcmcda``).
+   other person. A new track cannot begin with a copy (``mcmcda``).
 
 The likelihood is eq. (4) itself, and each sensor's term stays local. Everything runs on the
 grid of ``GridFusion``.
@@ -329,19 +332,28 @@ class _Scan:
         return float((self.weight[:-1] - free_weight[:-1]).sum())
 
     def split_one(self) -> bool:
-        """Replace one new target by the two that explain the scan best, if that gains min_gain."""
+        """Replace one target by the two that explain the scan best, if that gains min_gain (a
+        track's target: expected_split_gain)."""
         for k, target in enumerate(self.targets):
-            if target.expectation is not None:
+            expected = target.expectation is not None
+            bar = self.config.expected_split_gain if expected else self.config.min_gain
+            if bar == math.inf:
                 continue
-            best_pair, best_total = None, self._total(self._free_weight()) + self.config.min_gain
+            best_pair, best_total = None, self._total(self._free_weight()) + bar
             centre = self.grid.cells[target.cell]
             offset = 0.5 * float(self.grid.cell_range[target.cell])
             for angle in _SPLIT_ANGLES:
                 u = offset * np.array((math.cos(angle), math.sin(angle)))
                 pair = [int(self.grid.cell_tree.query(centre + u)[1]), int(self.grid.cell_tree.query(centre - u)[1])]
+                if expected:
+                    pair[0] = target.cell
                 for _ in range(4):
                     for i in (0, 1):
-                        pair[i] = int(np.argmax(self._gains_all(k, extra=[pair[1 - i]])))
+                        if expected and i == 0:
+                            gain = self._gains_on(target.gate, k, extra=[pair[1]])
+                            pair[0] = int(target.gate[int(np.argmax(gain))])
+                        else:
+                            pair[i] = int(np.argmax(self._gains_all(k, extra=[pair[1 - i]])))
                 total = self._total(self._free_weight(k, extra=pair))
                 if total > best_total:
                     best_pair, best_total = pair, total
