@@ -76,6 +76,8 @@ _MIN_VARIANCE_CELLS = 1.0 / 12.0
 # Starting offsets of a split, as angles of the line through the two new targets.
 _SPLIT_ANGLES = np.arange(4) * np.pi / 4
 _MAX_SWEEPS = 10
+# Rounds of the coordinate ascent that places the two targets of a split.
+_SPLIT_ROUNDS = 4
 
 
 @dataclass(frozen=True)
@@ -278,6 +280,16 @@ class _Scan:
         gain[rows] = self.fit.sums(rows, self.weight * free)
         return gain
 
+    def _best_all(self, k: int, extra=()) -> int:
+        """``np.argmax(self._gains_all(k, extra))``, without copying the grid's gains."""
+        free = self._free(k, extra)
+        rows = self.fit.cells_covering(np.flatnonzero((self.count == 0) != free))
+        kept = self.base[rows]
+        self.base[rows] = self.fit.sums(rows, self.weight * free)
+        best = int(np.argmax(self.base))
+        self.base[rows] = kept
+        return best
+
     def _support(self, target: _Target, gain: np.ndarray) -> float:
         """log Σ π e^gain over an expected target's gate (``gain`` per gate cell): its evidence, nats."""
         x = target.log_prior + gain
@@ -342,18 +354,35 @@ class _Scan:
             best_pair, best_total = None, self._total(self._free_weight()) + bar
             centre = self.grid.cells[target.cell]
             offset = 0.5 * float(self.grid.cell_range[target.cell])
+            # each round of the ascent depends only on the pair it starts from: the pair that
+            # (pair, rounds left) ends at, and the pairs already scored (a repeat cannot win)
+            ends: dict[tuple[int, int, int], tuple[int, int]] = {}
+            scored: set[tuple[int, int]] = set()
             for angle in _SPLIT_ANGLES:
                 u = offset * np.array((math.cos(angle), math.sin(angle)))
                 pair = [int(self.grid.cell_tree.query(centre + u)[1]), int(self.grid.cell_tree.query(centre - u)[1])]
                 if expected:
                     pair[0] = target.cell
-                for _ in range(4):
+                path = []
+                for left in range(_SPLIT_ROUNDS, 0, -1):
+                    start = (pair[0], pair[1])
+                    if (*start, left) in ends:
+                        pair = list(ends[(*start, left)])
+                        break
+                    path.append((*start, left))
                     for i in (0, 1):
                         if expected and i == 0:
                             gain = self._gains_on(target.gate, k, extra=[pair[1]])
                             pair[0] = int(target.gate[int(np.argmax(gain))])
                         else:
-                            pair[i] = int(np.argmax(self._gains_all(k, extra=[pair[1 - i]])))
+                            pair[i] = self._best_all(k, extra=[pair[1 - i]])
+                    if (pair[0], pair[1]) == start:  # a fixed point: the rounds left change nothing
+                        break
+                end = (pair[0], pair[1])
+                ends.update(dict.fromkeys(path, end))
+                if end in scored:
+                    continue
+                scored.add(end)
                 total = self._total(self._free_weight(k, extra=pair))
                 if total > best_total:
                     best_pair, best_total = pair, total
