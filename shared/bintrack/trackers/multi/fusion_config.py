@@ -35,8 +35,8 @@ class FusionConfig:
     """"fit": an expected target may sit within this many standard deviations of the prediction"""
     expected_split_gain: float = 4.0
     """"fit": the least gain, nats, for which a target placed where a track expects one is split
-    in two, the track's target (still within its gate) and a new one; ``inf``: never. Higher than
-    ``min_gain``, since the track's target was already judged supported"""
+    in two, the track's target (still within its gate) and a new one; ``inf``: never (4 chosen
+    on the tuning half of ``benchmarks/multi_target.py``)"""
     split: bool = True
     """"fit": try replacing each target by two"""
     shared: bool = True
