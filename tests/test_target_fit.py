@@ -97,7 +97,8 @@ def test_a_track_hidden_in_another_tracks_blob_gets_a_loose_shared_copy():
     assert copies[0].cov[0][0] >= own[0].cov[0][0] + 16.0  # (R/2)² looser: no pull onto the other
     # two people side by side move alike and get copies too, unless shared_speed asks for
     # tracks that move differently; no copies for tracks too young to trust
-    alike = crossing(vx_hidden=1.2)[:1] + [Expectation(x=23.5, y=24.2, sigma=1.0, vx=1.2, vy=0.0, reports=20, unreported=1)]
+    alike = crossing(vx_hidden=1.2)[:1] + [
+        Expectation(x=23.5, y=24.2, sigma=1.0, vx=1.2, vy=0.0, reports=20, unreported=1)]
     assert any(r.shared for r in fusion.reports(detecting, alike))
     assert not any(r.shared for r in GridFusion(deployment, FusionConfig(shared_speed=0.5)).reports(detecting, alike))
     assert not any(r.shared for r in fusion.reports(detecting, crossing(vx_hidden=-1.2, reports=2)))

@@ -50,9 +50,9 @@ a target adds the weights of the sensors it covers that no other target covers (
      detections.
 
    Two people passing each other, or walking side by side, make one blob of detections, and
-   binary sensors cannot resolve it. The copy keeps the hidden person's track, and its count, alive. The copy has a
-   loose covariance (the gap plus (R/2)² per axis), so it does not pull the track onto the
-   other person. A new track cannot begin with a copy (``mcmcda``).
+   binary sensors cannot resolve it. The copy keeps the hidden person's track, and its count,
+   alive. The copy has a loose covariance (the gap plus (R/2)² per axis), so it does not pull
+   the track onto the other person. A new track cannot begin with a copy (``mcmcda``).
 
 The likelihood is eq. (4) itself, and each sensor's term stays local. Everything runs on the
 grid of ``GridFusion``.
