@@ -155,6 +155,8 @@ VARIANTS: dict[str, dict] = {
     "pd0.8": {"mcmcda": {"pd": 0.8}},
     "pd0.9": {"mcmcda": {"pd": 0.9}},
     "lf1e-4": {"mcmcda": {"false_alarm_rate": 1e-4}},
+    "su1": {"fusion": {"shared_unreported": 1}},
+    "su3": {"fusion": {"shared_unreported": 3}},
     "esg3": {"fusion": {"expected_split_gain": 3.0}},
     "esg5": {"fusion": {"expected_split_gain": 5.0}},
     "nosplit-expected": {"fusion": {"min_gain": 3.0, "expected_split_gain": float("inf")}},

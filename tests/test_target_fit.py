@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -102,6 +103,11 @@ def test_a_track_hidden_in_another_tracks_blob_gets_a_loose_shared_copy():
     assert any(r.shared for r in fusion.reports(detecting, alike))
     assert not any(r.shared for r in GridFusion(deployment, FusionConfig(shared_speed=0.5)).reports(detecting, alike))
     assert not any(r.shared for r in fusion.reports(detecting, crossing(vx_hidden=-1.2, reports=2)))
+    # a track unreported in the previous scan still gets copies; one unreported longer does not
+    late = [crossing(vx_hidden=-1.2)[0], replace(crossing(vx_hidden=-1.2)[1], unreported=2)]
+    assert any(r.shared for r in fusion.reports(detecting, late))
+    later = [late[0], replace(late[1], unreported=3)]
+    assert not any(r.shared for r in fusion.reports(detecting, later))
     assert not any(r.shared for r in GridFusion(deployment, FusionConfig(shared=False)).reports(
         detecting, crossing(vx_hidden=-1.2)))
 

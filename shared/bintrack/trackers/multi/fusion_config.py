@@ -46,6 +46,10 @@ class FusionConfig:
     hidden track and the report's (0: none; two people walking side by side move alike)"""
     shared_age: int = 3
     """reports both tracks must have taken before a copy is made"""
+    shared_unreported: int = 2
+    """a copy is made for a track reported (or given a copy) within this many scans, counting the
+    one being fused (1: in the previous scan); 2 chosen on the tuning half of
+    ``benchmarks/multi_target.py``"""
     shared_gap: float = 1.0
     """a copy is made when the hidden track's prediction is within this multiple of the
     sensing range of the report"""

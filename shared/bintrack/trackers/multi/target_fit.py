@@ -43,7 +43,8 @@ a target adds the weights of the sensors it covers that no other target covers (
    - the two tracks have moved differently by at least ``shared_speed``, m/s (0 by default:
      two people walking side by side move alike);
    - both are established (at least ``shared_age`` reports);
-   - it was reported in the previous scan;
+   - it was reported, or given a copy, within the last ``shared_unreported`` scans (2: a
+     scan in which its copy was not made does not end its copies);
    - its prediction is at least ``shared_edge`` sensing ranges inside the sensor field (the
      sensors' convex hull). Nearer the edge, a person with no support of their own has as
      likely left, and a copy would keep a departed person's track alive on someone else's
@@ -425,7 +426,7 @@ class _Scan:
         centres = np.array([(r.x, r.y) for r in reports])
         copies, copied = [], set()
         for e, hidden in enumerate(expected):
-            if e in placed_for or hidden.reports < c.shared_age or hidden.unreported > 1:
+            if e in placed_for or hidden.reports < c.shared_age or hidden.unreported > c.shared_unreported:
                 continue
             gaps = np.hypot(centres[:, 0] - hidden.x, centres[:, 1] - hidden.y)
             k = int(np.argmin(gaps))
