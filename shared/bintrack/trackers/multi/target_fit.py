@@ -272,21 +272,26 @@ class _Scan:
         targets at ``extra``)."""
         return self.fit.sums(rows, self._free_weight(k, extra))
 
+    def _differing(self, k: int, extra=()) -> tuple[np.ndarray, np.ndarray]:
+        """The cells where a target's gain given every target but ``k`` and targets at ``extra``
+        differs from ``base`` (those target ``k`` or ``extra`` reach), and those gains (nats)."""
+        free = self._free(k, extra)
+        rows = self.fit.cells_covering(np.flatnonzero((self.count == 0) != free))
+        return rows, self.fit.sums(rows, self.weight * free)
+
     def _gains_all(self, k: int, extra=()) -> np.ndarray:
         """Per cell: the gain (nats) of a target there given every target but ``k`` and targets
         at ``extra``: ``base``, recomputed where target ``k`` or ``extra`` reach."""
-        free = self._free(k, extra)
+        rows, gains = self._differing(k, extra)
         gain = self.base.copy()
-        rows = self.fit.cells_covering(np.flatnonzero((self.count == 0) != free))
-        gain[rows] = self.fit.sums(rows, self.weight * free)
+        gain[rows] = gains
         return gain
 
     def _best_all(self, k: int, extra=()) -> int:
         """``np.argmax(self._gains_all(k, extra))``, without copying the grid's gains."""
-        free = self._free(k, extra)
-        rows = self.fit.cells_covering(np.flatnonzero((self.count == 0) != free))
+        rows, gains = self._differing(k, extra)
         kept = self.base[rows]
-        self.base[rows] = self.fit.sums(rows, self.weight * free)
+        self.base[rows] = gains
         best = int(np.argmax(self.base))
         self.base[rows] = kept
         return best
