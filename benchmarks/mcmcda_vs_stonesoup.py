@@ -213,13 +213,15 @@ class Setting:
     gate: float        # GNN: Mahalanobis missed_distance; JPDA: chi-square gate probability
     min_points: int    # MultiMeasurementInitiator: reports (its first included) needed to confirm
     deleter: str       # "steps:N" (UpdateTimeStepsDeleter) or "cov:T" (position-covariance trace, m²)
+    process_noise: float | None = None  # q of its CV model, m²/s³; None: our MCMCDA's
 
     def text(self, kind: str) -> str:
         gate = f"gate d_M<{self.gate:g}" if kind == "GNN" else f"P_G={self.gate:g}"
         kind_, value = self.deleter.split(":")
         deleter = (f"deleted at {value} consecutive missed scans" if kind_ == "steps"
                    else f"delete when pos. cov. trace > {value} m²")
-        return f"{gate}, confirmed at {self.min_points} reports, {deleter}"
+        q = "" if self.process_noise is None else f", q {self.process_noise:g} m²/s³"
+        return f"{gate}, confirmed at {self.min_points} reports, {deleter}{q}"
 
 
 GATES = {"GNN": (3.0, 4.0), "JPDA": (0.99, 0.999)}  # Mahalanobis distance; PDA gate probability
@@ -269,11 +271,11 @@ def tune(case: Case, kind: str, config, quick: bool, grid_scores: dict | None = 
     return best[0], best[1], tried, abandoned
 
 
-def stonesoup_model(config):
-    """Stone Soup's version of our model: CV per axis with our q, and the shared parameters."""
+def stonesoup_model(config, process_noise: float | None = None):
+    """Stone Soup's version of our model: CV per axis with our q (or ``process_noise``, m²/s³)."""
     from stonesoup.models.transition.linear import CombinedLinearGaussianTransitionModel, ConstantVelocity
 
-    q = float(config.process_noise)
+    q = float(config.process_noise if process_noise is None else process_noise)
     return CombinedLinearGaussianTransitionModel([ConstantVelocity(q), ConstantVelocity(q)])
 
 
@@ -307,7 +309,7 @@ def make_stonesoup(kind: str, setting: Setting, config, scans):
     from stonesoup.types.state import GaussianState
     from stonesoup.updater.kalman import KalmanUpdater
 
-    predictor = KalmanPredictor(stonesoup_model(config))
+    predictor = KalmanPredictor(stonesoup_model(config, setting.process_noise))
     updater = KalmanUpdater(measurement_model=None)  # every detection brings its own
     if kind == "GNN":
         hypothesiser = DistanceHypothesiser(predictor, updater, measure=Mahalanobis(),
