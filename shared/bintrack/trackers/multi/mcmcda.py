@@ -83,8 +83,10 @@ class MCMCDAConfig:
     half the seed spread of one chain; it takes about 4 × one chain's time)"""
     seed: int = 0
     """seed of the sampler's random stream"""
-    process_noise: float = 0.1
-    """q: white-acceleration spectral density of the constant-velocity model, units²/s³"""
+    process_noise: float = 0.02
+    """q: white-acceleration spectral density of the constant-velocity model, units²/s³ (0.02
+    chosen on the tuning half of ``benchmarks/multi_target.py``: people walk with few sharp
+    turns; it was 0.1)"""
     extra_variance: float = 4.0
     """added to each report's variance per axis, units² (a cluster's spread understates the
     error of its centre)"""
