@@ -35,10 +35,11 @@ spread of GNN's over its settings on the tuning half.
 Simulated grids are cached under ``/tmp/bintrack-multi-target`` (``--cache``). Needs the
 ``bench`` extra (Stone Soup); exits 2 without it. Default run (8 + 8 grids, 3 sampler seeds,
 2 worker processes): 4.5 min wall on the idle 2-core machine, 62 min once on 2 cores shared
-with other work (load 15–25), most of it Stone Soup's 17 + 17 settings on the tuning half; ``--quick`` (3 + 3 grids, 2 seeds, 4 Stone
-Soup settings per associator) is a few minutes. A Stone Soup setting is abandoned past 60 s
-of wall time on one grid, so under heavy load fewer JPDA settings are ranked; ``--stonesoup GNN``
-leaves JPDA out (2.5 min on the idle machine). Progress on stderr, results on stdout.
+with other work (load 15–25), most of it Stone Soup's 17 + 17 settings on the tuning half;
+``--quick`` (3 + 3 grids, 2 seeds, 4 Stone Soup settings per associator) is a few minutes. A
+Stone Soup setting is abandoned past 60 s of wall time on one grid, so under heavy load fewer
+JPDA settings are ranked; ``--stonesoup GNN`` leaves JPDA out (2.5 min on the idle machine).
+Progress on stderr, results on stdout.
 
 Run: ``nice -n 10 .venv/bin/python benchmarks/multi_target.py [--quick] [--jobs 2]``
 """
