@@ -351,21 +351,15 @@ def main(argv: list[str] | None = None) -> int:
                 stone[(n, k, s)] = sc
             ranked = _rank(stone, kind, settings, tuning)
             if not args.quick and ranked:
-                first = ranked[0][1]
-                others = [replace(first, gate=g) for g in vs.GATES[kind][1:]]
-                stage = [(n, cases[n], kind, s) for s in others for n in tuning]
-                for n, k, s, sc in progress(f"Stone Soup {kind}, other gate", stage, run_stonesoup):
-                    stone[(n, k, s)] = sc
-                settings = settings + others
-                ranked = _rank(stone, kind, settings, tuning)
-                # its own motion model too: the best so far with each other process noise
-                first = ranked[0][1]
-                others = [replace(first, process_noise=q) for q in PEER_PROCESS_NOISE]
-                stage = [(n, cases[n], kind, s) for s in others for n in tuning]
-                for n, k, s, sc in progress(f"Stone Soup {kind}, other process noise", stage, run_stonesoup):
-                    stone[(n, k, s)] = sc
-                settings = settings + others
-                ranked = _rank(stone, kind, settings, tuning)
+                # coordinate search from the best so far: the other gate, then its own motion model
+                for label, field, values in (("other gate", "gate", vs.GATES[kind][1:]),
+                                             ("other process noise", "process_noise", PEER_PROCESS_NOISE)):
+                    others = [replace(ranked[0][1], **{field: v}) for v in values]
+                    stage = [(n, cases[n], kind, s) for s in others for n in tuning]
+                    for n, k, s, sc in progress(f"Stone Soup {kind}, {label}", stage, run_stonesoup):
+                        stone[(n, k, s)] = sc
+                    settings = settings + others
+                    ranked = _rank(stone, kind, settings, tuning)
             if not ranked:
                 print(f"multi_target: every Stone Soup {kind} setting ran over its time budget", file=sys.stderr)
                 return 1
