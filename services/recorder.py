@@ -232,11 +232,13 @@ class Recorder(Service):
         t = self.last_t if t is None else t
         if parsed.kind == "clock":
             self._maybe_split(t)  # a new file starts with a clock tick
-            if self.gap_from is not None:
-                log.warning("recorder: recording again from t=%g s; the raw samples, transitions and estimates "
-                            "published between t=%g s and then are missing from %s (track sets fetched)",
-                            t, self.gap_from, self.path)
-                self.gap_from = None
+        if self.gap_from is not None and parsed.kind in ("clock", "eos"):
+            # the first tick after a restart, or the end of stream if no tick follows (a kill
+            # after the last tick): up to there, what the lost chunk held is not coming back
+            log.warning("recorder: recording again from t=%g s; the raw samples, transitions and estimates "
+                        "published between t=%g s and then are missing from %s (track sets fetched)",
+                        t, self.gap_from, self.path)
+            self.gap_from = None
         try:
             self.writer.write(key, t, payload, time.time_ns())
         except ValueError as exc:

@@ -35,6 +35,7 @@ from bintrack.messages import (
     Clock,
     Deployment,
     DiskSensor,
+    EndOfStream,
     LocalEstimate,
     RawSample,
     Region,
@@ -416,6 +417,31 @@ def test_a_restarted_sensor_agent_still_serves_what_it_sent_before_its_checkpoin
     assert [state.missed for state in replies] == [before], restarted.log
     assert "restarted; resuming from its checkpoint" in restarted.log
     assert restarted.stop() == 0
+
+
+def test_a_recorder_killed_after_the_last_tick_logs_its_loss_at_the_end_of_stream(tmp_path, zenoh_router,
+                                                                                  services, bus):
+    """What a killed recorder had not flushed is lost; the restarted one says so at the next
+    clock tick, or at the end of stream when no tick follows (the kill came after the last)."""
+    state_dir = tmp_path / "state"
+    state_dir.mkdir(mode=0o700)
+    out = tmp_path / "run.mcap"
+    args = ("--out", str(out), "--id", "r0", "--state-dir", str(state_dir), "--net", NET)
+    recorder = services("recorder", *args, endpoint=zenoh_router)
+    bus.wait_for("recorder", recorder)
+    bus.put("raw/n0", RawSample(t=1.0, sensor="n0", value=1))
+    bus.tick(2.0, "recorder", recorder)  # the last tick; the recorder has not flushed it
+    recorder.proc.send_signal(signal.SIGKILL)
+    assert recorder.wait(HUNG) == -signal.SIGKILL
+    wait_until(lambda: not bus.alive("recorder"), "the killed recorder's token to go")
+    restarted = services("recorder", *args, endpoint=zenoh_router)
+    bus.wait_for("recorder", restarted)
+    bus.put("control/eos", EndOfStream(t=2.0))
+    assert restarted.wait(HUNG) == 0, restarted.log
+    assert "recorder: restarted; kept the 0 messages recorded before (up to t=0 s)" in restarted.log
+    assert ("recording again from t=2 s; the raw samples, transitions and estimates published between t=0 s "
+            "and then are missing") in restarted.log
+    assert open_recording(out).complete
 
 
 @pytest.fixture(scope="module")
