@@ -110,6 +110,24 @@ def test_a_departed_upstream_holds_the_watermark_for_the_hold_after_it_went_not_
     assert mark.bound(23.0) == float("inf")  # every instance gone for good: the clock alone bounds
 
 
+def test_ticks_already_in_flight_when_an_upstream_went_do_not_use_up_its_hold():
+    mark = UpstreamWatermark({"sensor_agent"}, hold=2.0)
+    mark.on_liveliness("sensor_agent", "s1", True)
+    mark.reported("sensor_agent", "s1", 8.0)
+    mark.on_liveliness("sensor_agent", "s1", False)
+    # the departure is seen at the tick 8.5; the replay had sent 16 ticks of 0.5 s ahead of
+    # what s1 acknowledged, and they still arrive: s1's floor holds through all of them
+    lead = 16 * 0.5
+    assert mark.bound(8.5, lead) == 8.0
+    assert mark.bound(16.0, lead) == 8.0
+    assert mark.bound(18.0, lead) == 8.0
+    mark.on_liveliness("sensor_agent", "s1", True)  # restarted: what it resends from 8 s is not late
+    assert mark.bound(18.0, lead) == 8.0
+    mark.on_liveliness("sensor_agent", "s1", False)
+    assert mark.bound(18.5, lead) == 8.0
+    assert mark.bound(28.5, lead) == float("inf")  # gone for good after the hold and the lead
+
+
 def test_the_watermark_waits_for_an_instance_of_each_upstream_service():
     mark = UpstreamWatermark({"sensor_agent", "peer_agent"}, hold=2.0)
     mark.on_liveliness("sensor_agent", "s1", True)

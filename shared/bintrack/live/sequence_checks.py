@@ -79,11 +79,11 @@ class UpstreamWatermark:
     reports what it has released. ``bound(tick)`` is the least report of the live instances of
     ``services`` (−inf for one that has not reported yet); an instance whose token went keeps
     its last report as a floor until it is back (a restart under the same id) or the clock
-    advanced ``hold`` s past the first tick seen after the token went (it is gone for good), so
-    that what it sends after a restart is not late. The hold counts from the departure, not from
-    the floor: the clock may already be up to the replay's lead (``--max-ahead`` clock periods)
-    past the floor when the token goes, and the replay holds event time while an awaited
-    service is gone. Until an instance of each of ``services`` has been seen it is −inf: their
+    advanced ``hold`` s plus the replay's lead past the first tick seen after the token went (it
+    is gone for good), so that what it sends after a restart is not late. The replay holds event
+    time while an awaited service is gone, but up to its lead (``--max-ahead`` clock periods, the
+    ``lead`` given to :meth:`bound`) of ticks it sent before may still be on their way: they
+    arrive on another path than the departure, so they must not use up the hold. Until an instance of each of ``services`` has been seen it is −inf: their
     first outputs may arrive after the first ticks, and a liveliness token comes on another path
     than the clock, so the clock alone must not release past them. Once every instance seen has
     gone for good it is +inf (the clock alone bounds).
@@ -114,15 +114,17 @@ class UpstreamWatermark:
         entry = (service, instance)
         self.progress[entry] = max(t, self.progress.get(entry, -math.inf))
 
-    def bound(self, tick: float) -> float:
-        """The watermark (s) the upstream allows when the latest clock tick is ``tick`` (s)."""
+    def bound(self, tick: float, lead: float = 0.0) -> float:
+        """The watermark (s) the upstream allows when the latest clock tick is ``tick`` (s) and
+        the replay may have sent ticks up to ``lead`` s of event time ahead of what its consumers
+        acknowledged."""
         least = -math.inf if self.unseen else math.inf
         for entry in self.alive:
             least = min(least, self.progress.get(entry, -math.inf))
         for entry, since in list(self.departed.items()):
             if since is None:
                 self.departed[entry] = since = tick
-            if tick >= since + self.hold:
+            if tick >= since + self.hold + lead:
                 del self.departed[entry]
                 self.progress.pop(entry, None)
             else:

@@ -97,7 +97,8 @@ class TransitionConsumer(Service):
 
     def watermark(self) -> float:
         """The event time (s) before which every transition has arrived."""
-        return min(self.last_tick - self.args.lateness, self.upstream_mark.bound(self.last_tick))
+        lead = max(self.guard.steps.values(), default=0.0)  # what the replays announced: ticks in flight
+        return min(self.last_tick - self.args.lateness, self.upstream_mark.bound(self.last_tick, lead))
 
     def release(self, report: bool = True) -> None:
         """Advance the tracker to the watermark if it moved, publish what it gives and, with
