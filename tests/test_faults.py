@@ -176,7 +176,10 @@ def test_services_killed_mid_run_lose_only_what_is_logged(grid_slice, offline_ro
     from bintrack.services.recorder import FLUSH_INTERVAL, FLUSH_SPAN
 
     recording = tmp_path / "run.mcap"
-    up = Up(str(grid_slice), "--tracker", tracker, "--speed", str(speed), "--record", str(recording),
+    # at --speed 0 the default 0.5 s ticks play the 20 s slice in a fraction of a second, over
+    # before a kill at 8 s could land; 0.05 s ticks pace it over seconds
+    fine = ("--clock-period", "0.05") if speed == 0 else ()
+    up = Up(str(grid_slice), "--tracker", tracker, "--speed", str(speed), *fine, "--record", str(recording),
             "--exit-at-end")
     for n, victim in enumerate(victims):
         up.event_time_at_least(8.0 if speed == 0 else 4.0 * (n + 1))

@@ -58,6 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_tracker_arguments(parser)
     parser.add_argument("--speed", type=float, default=1.0,
                         help="replay speed: 1 real time, 0 as fast as flow control allows (default: %(default)s)")
+    parser.add_argument("--clock-period", type=positive_float, metavar="S",
+                        help="event time between the replay's clock ticks, s (default: replay's own, which "
+                        "follows --speed)")
     parser.add_argument("--loop", action="store_true", help="replay in a loop")
     parser.add_argument("--record", metavar="FILE.mcap", help="record everything into this file")
     parser.add_argument("--exit-at-end", action="store_true", help="stop once the replay's end has been processed")
@@ -283,13 +286,14 @@ def run(args: argparse.Namespace) -> int:
             commands = region_stack_commands(regions=names, endpoint=args.listen, net=net, source=source,
                                              speed=args.speed, loop=args.loop, record=args.record,
                                              tracker_args=tracker_arguments(options), view_port=view_port,
-                                             view_bind=view_bind)
+                                             view_bind=view_bind, clock_period=args.clock_period)
         except ValueError as exc:
             raise CommandError(f"--regions: {exc}") from None
     else:
         commands = stack_commands(tracker=args.tracker, endpoint=args.listen, net=net, source=args.source,
                                   speed=args.speed, loop=args.loop, record=args.record, estimates=options.estimates,
-                                  tracker_args=tracker_arguments(options), view_port=view_port, view_bind=view_bind)
+                                  tracker_args=tracker_arguments(options), view_port=view_port, view_bind=view_bind,
+                                  clock_period=args.clock_period)
     if args.secure:
         commands, config = secure_up(commands, args.certs, args.listen)
     else:

@@ -33,7 +33,8 @@ class ServiceCommand:
 def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None = None, speed: float = 1.0,
                    loop: bool = False, record: str | None = None, estimates: str | None = None,
                    tracker_args: tuple[str, ...] = (), view_port: int | None = None,
-                   view_bind: str = "127.0.0.1", state_dir: str | None = None) -> list[ServiceCommand]:
+                   view_bind: str = "127.0.0.1", state_dir: str | None = None,
+                   clock_period: float | None = None) -> list[ServiceCommand]:
     """The services in start order: the sensor agents, the peer agents if ``tracker`` runs on
     them, the base station, the recorder if ``record``, the view if ``view_port``, and last the replay of ``source`` (if
     any), which waits for all the others. ``estimates``: the peer tracker whose estimates
@@ -41,7 +42,8 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
     options of the tracker, for the service that runs it; ``view_port``: the map (the view
     service) on http://``view_bind``:``view_port``/, None for no map; ``state_dir``: each service
     but the view keeps its checkpoint there under a fixed ``--id`` (its name), so that a
-    restarted container resumes (compose; ``up`` gives its own)."""
+    restarted container resumes (compose; ``up`` gives its own); ``clock_period``: the replay's
+    ``--clock-period`` (s of event time), None for its default."""
     bus = ("-e", endpoint, "--net", net)
     services = [ServiceCommand("sensor_agent", bus)]
     if runs_on_peers(tracker):
@@ -54,13 +56,18 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
         services.append(ServiceCommand("basestation", ("--tracker", tracker, *extra, *bus)))
     services += _recorder_and_view(record, loop and source is not None, view_port, view_bind, bus)
     if source is not None:
-        replay = [source, "--speed", _number(speed), *(["--loop"] if loop else []),
-                  "--wait-for", ",".join(s.name for s in services)]
+        replay = [*_replay_pace(source, speed, loop, clock_period), "--wait-for", ",".join(s.name for s in services)]
         services.append(ServiceCommand("replay", (*replay, *bus)))
     if state_dir is not None:
         services = [s if s.name == "view" else ServiceCommand(s.name, (*s.args, "--id", s.name, "--state-dir", state_dir))
                     for s in services]
     return services
+
+
+def _replay_pace(source: str, speed: float, loop: bool, clock_period: float | None) -> list[str]:
+    """Replay's source and pacing options."""
+    period = [] if clock_period is None else ["--clock-period", _number(clock_period)]
+    return [source, "--speed", _number(speed), *period, *(["--loop"] if loop else [])]
 
 
 def _number(value: float) -> str:
@@ -89,11 +96,12 @@ def region_endpoints(listen: str, count: int) -> list[str]:
 def region_stack_commands(*, regions: list[str], endpoint: str, net: str, source: str | None = None,
                           speed: float = 1.0, loop: bool = False, record: str | None = None,
                           tracker_args: tuple[str, ...] = (), view_port: int | None = None,
-                          view_bind: str = "127.0.0.1") -> list[ServiceCommand]:
+                          view_bind: str = "127.0.0.1", clock_period: float | None = None) -> list[ServiceCommand]:
     """The stack of a deployment cut into ``regions`` (mcmcda at the base stations): per region
     a router (meshed with the hub router at ``endpoint`` and the regions' routers before it), a
     sensor agent and a base station on that router; then on the hub the merge, the recorder if
-    ``record``, the view if ``view_port`` and the replay of ``source``, which waits for all."""
+    ``record``, the view if ``view_port`` and the replay of ``source``, which waits for all
+    (``clock_period``: its ``--clock-period``, s, None for its default)."""
     routers = region_endpoints(endpoint, len(regions))
     services = []
     for i, region in enumerate(regions):
@@ -111,7 +119,7 @@ def region_stack_commands(*, regions: list[str], endpoint: str, net: str, source
         n = len(regions)
         wanted = [f"sensor_agent*{n}", f"basestation*{n}", *(c.name for c in services if c.name not in
                                                               ("router", "sensor_agent", "basestation"))]
-        replay = [source, "--speed", _number(speed), *(["--loop"] if loop else []), "--wait-for", ",".join(wanted)]
+        replay = [*_replay_pace(source, speed, loop, clock_period), "--wait-for", ",".join(wanted)]
         services.append(ServiceCommand("replay", (*replay, *bus)))
     return services
 
