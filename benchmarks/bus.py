@@ -15,7 +15,8 @@ Everything runs on loopback (127.0.0.1) through one Zenoh router embedded in thi
    (its receipt time in the recording) to the recorder's ``control/done`` (sent once the file
    is finalised, after the sensor agent is done); transitions and raw samples are counted in
    the recording.
-   Replay is flow controlled: a clock tick (every ``--clock-period``, 0.05 s by default)
+   Replay is flow controlled: a clock tick (every ``--clock-period``; by default 0.5 s of
+   event time at ``--speed 0``, 0.05 s at ``--speed 1``)
    waits until every consumer acknowledged the tick ``--max-ahead`` (16) before it; the
    services acknowledge every 8 ticks or 5 ms. Also: CPU seconds of each service per 1 000
    transitions (user + system of the process, start-up included).
@@ -66,11 +67,11 @@ from bintrack.formats import open_dataset, write_dataset
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, RawSample, TrackSet, Transition, decode, encode
 from bintrack.live.recording import open_recording
+from bintrack.live.replay_schedule import default_clock_period
 from bintrack.cli.export_command import track_rows
 from bintrack.pipeline import output_rows, run_tracker
 from bintrack.services import basestation as basestation_service
 from bintrack.services import peer_agent as peer_agent_service
-from bintrack.services import replay as replay_service
 from bintrack.sim.scenarios import simulate
 from bintrack.trackers import make_tracker
 
@@ -83,7 +84,8 @@ PIPELINE_RUNS = 3
 PIPELINE_SCENARIO = dict(name="darpa-grid", seed=1, people=40, duration=1200.0)
 LATENCY_SOURCE = REPO / "datasets" / "darpa-grid-3"
 LATENCY_SLICE = 30.0  # s of event time
-CLOCK_PERIOD = replay_service.build_parser().get_default("clock_period")  # replay's default --clock-period, s
+FAST_PERIOD = default_clock_period(0.0)  # replay's default --clock-period at --speed 0, s
+LIVE_PERIOD = default_clock_period(1.0)  # and at --speed 1
 PEER_DEFAULT_LATENESS = peer_agent_service.build_parser().get_default("lateness")
 BASESTATION_DEFAULT_LATENESS = basestation_service.build_parser().get_default("lateness")
 LATENCY_RUNS = (  # (label, peer --lateness, basestation --lateness; None for the service's default)
@@ -294,7 +296,7 @@ def pipeline(children: Children, session: zenoh.Session, work: Path) -> Pipeline
     source = write_dataset(work / "pipeline-dataset", sim.deployment, sim.events, sim.truth)
     events = len(sim.events)
     span = sim.events[-1].t - sim.events[0].t
-    ticks = int(math.floor(sim.events[-1].t / CLOCK_PERIOD) - math.floor(sim.events[0].t / CLOCK_PERIOD)) + 2
+    ticks = int(math.floor(sim.events[-1].t / FAST_PERIOD) - math.floor(sim.events[0].t / FAST_PERIOD)) + 2
     say(f"pipeline dataset: {events} events over {span:.0f} s of event time ({events / ticks:.1f} per clock tick)")
     runs = [pipeline_run(children, session, source, work, k) for k in range(1, PIPELINE_RUNS + 1)]
     return PipelineResult(events, span, ticks, runs)
@@ -503,7 +505,7 @@ def latency(children: Children, session: zenoh.Session, source: Path, t_last: fl
     t0 = decode(RawSample, first).t
     # The last tick is the first grid point past the last event; what it does not release
     # goes out with the end-of-stream flush.
-    last_tick = (math.floor(t_last / CLOCK_PERIOD) + 1) * CLOCK_PERIOD
+    last_tick = (math.floor(t_last / LIVE_PERIOD) + 1) * LIVE_PERIOD
 
     def measure(items: list[tuple[float, bytes]], cls, hold: float) -> Latencies:
         total, beyond, flushed = [], [], 0
@@ -511,7 +513,7 @@ def latency(children: Children, session: zenoh.Session, source: Path, t_last: fl
             t = decode(cls, payload).t
             # released by the first tick T with t < T − hold (ReorderBuffer.release), due on
             # the wall clock (T − t0) after the first raw sample
-            tick = (math.floor((t + hold) / CLOCK_PERIOD) + 1) * CLOCK_PERIOD
+            tick = (math.floor((t + hold) / LIVE_PERIOD) + 1) * LIVE_PERIOD
             if tick > last_tick:
                 flushed += 1
                 continue
@@ -590,7 +592,7 @@ def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyRe
                  "every 8 ticks or 5 ms")
     lines.append(f"pipeline dataset: simulated darpa-grid, seed {PIPELINE_SCENARIO['seed']}, "
                  f"{PIPELINE_SCENARIO['people']} people, {PIPELINE_SCENARIO['duration']:g} s: {pipe.events} events "
-                 f"(all transitions), {pipe.ticks} clock ticks of {CLOCK_PERIOD:g} s = "
+                 f"(all transitions), {pipe.ticks} clock ticks of {FAST_PERIOD:g} s = "
                  f"{pipe.events / pipe.ticks:.1f} events per tick; recorded: {run.transitions} transitions, "
                  f"{run.raw} raw samples")
     cpu = ", ".join(f"{name} {value:.1f} s" if value is not None else f"{name} ?" for name, value in run.cpu.items())
@@ -598,7 +600,7 @@ def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyRe
                  f"{os.cpu_count()} cores; load average before the benchmark {LOAD_BEFORE}")
     lines.append(f"latency dataset: first {LATENCY_SLICE:g} s of {LATENCY_SOURCE.relative_to(REPO)} "
                  "(replay --speed 1, tracker equal-weight)")
-    lines.append(f"latency includes, by design, up to one clock period ({CLOCK_PERIOD:g} s) plus the lateness hold "
+    lines.append(f"latency includes, by design, up to one clock period ({LIVE_PERIOD:g} s) plus the lateness hold "
                  f"(peer_agent --lateness {PEER_DEFAULT_LATENESS:g} s for an estimate, basestation --lateness "
                  f"{BASESTATION_DEFAULT_LATENESS:g} s for a track): a transition is released at the first tick T with "
                  "t < T − lateness once the upstream services reported progress to T. 'beyond' = receipt − when "

@@ -36,7 +36,8 @@ from bintrack.formats import FormatError, TruthRow, open_dataset
 from bintrack.keys import Keys, parse_key
 from bintrack.messages import Clock, EndOfStream, TruthSample, encode, encode_raw_sample
 from bintrack.live.recording import Record, open_recording, replay_items, shift_payload
-from bintrack.live.replay_schedule import Consumers, End, Pacer, Publish, Tick, schedule
+from bintrack.live.replay_schedule import (TICK_FASTEST, TICK_WALL, Consumers, End, Pacer, Publish, Tick,
+                                           default_clock_period, schedule)
 
 log = logging.getLogger("bintrack")
 
@@ -59,8 +60,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="event time runs X times real time; 0 = as fast as flow control allows (default: %(default)s)")
     parser.add_argument("--loop", action="store_true",
                         help="play again after the end, shifted in event time so that it keeps increasing")
-    parser.add_argument("--clock-period", type=positive_float, default=0.05, metavar="S",
-                        help="event time between clock ticks, s (default: %(default)s)")
+    parser.add_argument("--clock-period", type=positive_float, default=None, metavar="S",
+                        help=f"event time between clock ticks, s (default: {TICK_WALL:g} s of wall clock at --speed, "
+                        f"from {TICK_WALL:g} to {TICK_FASTEST:g} s of event time; {TICK_FASTEST:g} at --speed 0)")
     parser.add_argument("--max-ahead", type=int_at_least(1), default=16, metavar="N",
                         help="clock ticks that may be unacknowledged by the slowest service (default: %(default)s)")
     parser.add_argument("--wait-for", action="append", default=[], metavar="SERVICE[,SERVICE…]",
@@ -104,6 +106,8 @@ class Replay(Service):
             # truth.csv, if the dataset has one, is published on `truth` (sorted by t; read and checked now)
             self.truth = sorted(self.dataset.truth(), key=lambda row: row.t) if self.dataset.has_truth else []
         args.net = args.net or source_net
+        if args.clock_period is None:
+            args.clock_period = default_clock_period(args.speed)
         try:
             Keys(args.net)
         except ValueError as exc:

@@ -4,6 +4,7 @@ on a real Zenoh router with real subprocesses — dataset → recorder, recordin
 
 from __future__ import annotations
 
+import math
 import signal
 import subprocess
 import sys
@@ -17,7 +18,8 @@ from bintrack.live.bus import client_config, router_config
 from bintrack.formats import Event, open_dataset, write_dataset
 from bintrack.messages import Clock, Deployment, DiskSensor, EndOfStream, RawSample, Region, decode, encode
 from bintrack.live.recording import open_recording
-from bintrack.live.replay_schedule import Consumers, End, NothingToReplay, Pacer, Publish, Tick, schedule
+from bintrack.live.replay_schedule import (Consumers, End, NothingToReplay, Pacer, Publish, Tick, default_clock_period,
+                                           schedule)
 
 from conftest import HUNG, REPO, free_port
 
@@ -51,6 +53,17 @@ def test_grid_ticks_acknowledgements_and_end():
         Tick(1.5, 1.0),  # the last tick: past the last event
         End(1.2, 1.5, True),
     ]
+
+
+def test_default_clock_period_is_50_ms_of_wall_clock_within_bounds():
+    assert default_clock_period(1.0) == pytest.approx(0.05)
+    assert default_clock_period(0.25) == pytest.approx(0.05)  # never finer than 0.05 s of event time
+    assert default_clock_period(4.0) == pytest.approx(0.2)
+    assert default_clock_period(100.0) == pytest.approx(0.5)  # never coarser than a PIR scan
+    assert default_clock_period(0.0) == pytest.approx(0.5)  # as fast as flow control allows
+    for bad in (-1.0, math.inf, math.nan):
+        with pytest.raises(ValueError, match="speed"):
+            default_clock_period(bad)
 
 
 def test_grid_starts_at_the_first_event_floored_and_skips_no_tick():
@@ -149,8 +162,8 @@ def test_dataset_into_recorder(tmp_path, zenoh_router, services):
     data = tiny_dataset(tmp_path / "tiny")
     out = tmp_path / "run.mcap"
     recorder = services("recorder", "--out", str(out), "--net", "tiny", endpoint=zenoh_router)
-    replay = services("replay", str(data), "--speed", "0", "--clock-period", "0.5", "--wait-for", "recorder",
-                      endpoint=zenoh_router)
+    # no --clock-period: at --speed 0 the ticks are 0.5 s of event time apart (default_clock_period)
+    replay = services("replay", str(data), "--speed", "0", "--wait-for", "recorder", endpoint=zenoh_router)
     assert replay.wait(HUNG) == 0, output(replay)
     assert recorder.wait(HUNG) == 0, output(recorder)
 
