@@ -14,22 +14,39 @@ import argparse
 import asyncio
 import sys
 from collections import deque
+from typing import NamedTuple
 
 import zenoh
 
 from bintrack.live.bus import Service, add_bus_arguments, log, service_main
 from bintrack.formats import Event, check_value
 from bintrack.keys import parse_key
-from bintrack.messages import Clock, EndOfStream, MessageError, RawSample, SensorState, Transition, decode_view, encode
+from bintrack.messages import (SCHEMA_VERSION, Clock, EndOfStream, MessageError, RawSample, SensorState, Transition,
+                                decode_view, encode, encode_transition)
 from bintrack.regions import RegionMap
 from bintrack.transition_detector import TransitionDetector
 
 HISTORY = 256  # transitions kept per sensor for gap repair …
 HISTORY_SPAN = 60.0  # … and no older than this, s of event time behind the clock (memory stays flat)
-FORGET_EVERY = 1.0  # s of event time between two trims of the histories
 RESUME_SPAN = 5.0  # s of event time of sent transitions a checkpoint keeps (those a kill may catch in flight)
 RETRY = 0.5  # s between asks for replay's recent samples
-TRANSITION_FIELDS = tuple(Transition.model_fields)
+TRANSITION_FIELDS = tuple(Transition.model_fields)  # a checkpoint's layout of a sent transition: version, then Sent's
+
+
+class Sent(NamedTuple):
+    """A transition this agent sent: the fields of ``Transition`` but its version. The model is
+    built only for a ``state`` reply; the hot path packs these fields directly."""
+
+    t: float
+    sensor: str
+    value: int
+    previous: int
+    seq: int
+    source: str
+    source_seq: int
+
+    def message(self) -> Transition:
+        return Transition(**self._asdict())
 
 
 class HostedSensor:
@@ -39,7 +56,7 @@ class HostedSensor:
         self.id = sensor_id
         self.detector = detector
         self.agent = agent
-        self.history: deque[Transition] = deque(maxlen=HISTORY)
+        self.history: deque[Sent] = deque(maxlen=HISTORY)
         self.last_t = float("-inf")
         self.key = agent.keys.transition(sensor_id)
 
@@ -48,26 +65,27 @@ class HostedSensor:
             self.agent.bad.report(self.agent.keys.raw(self.id), f"out of order: t={sample.t} after t={self.last_t}")
             return
         self.last_t = sample.t
-        transition = self.detector.update(Event(sample.t, self.id, sample.value))
-        if transition is None:
+        change = self.detector.change(Event(sample.t, self.id, sample.value))
+        if change is None:
             return
         self.agent.sent += 1
-        transition = transition.model_copy(update={"source": self.agent.instance, "source_seq": self.agent.sent})
-        self.history.append(transition)
+        # valid by construction: the sample was validated, seq and source_seq count from 1
+        transition = Sent(sample.t, self.id, sample.value, change[0], change[1], self.agent.instance, self.agent.sent)
+        self.remember(transition)
         self.agent.recent.append(transition)
         if self.agent.args.lose and self.agent.sent % self.agent.args.lose == 0:
             return  # --lose: a lossy link for tests; the receivers must repair the gap
-        self.agent.publish(self.key, transition)
+        self.agent.put(self.key, encode_transition(*transition))
 
-    def forget_before(self, t: float) -> None:
-        """Drop the history older than event time ``t`` (s)."""
-        while self.history and self.history[0].t < t:
-            self.history.popleft()
+    def remember(self, transition: Sent) -> None:
+        """Keep ``transition`` for gap repair (the agent's trail says when to forget it)."""
+        self.history.append(transition)
+        self.agent.trail.append(transition)
 
     def state(self, since: int | None, after_source_seq: int | None) -> SensorState:
         """Status and seq; ``missed``: transitions with seq > ``since`` or source_seq > ``after_source_seq``."""
         value, seq = self.detector.status(self.id)
-        missed = [tr for tr in self.history
+        missed = [tr.message() for tr in self.history
                   if (since is not None and tr.seq > since)
                   or (after_source_seq is not None and tr.source_seq > after_source_seq)]
         return SensorState(t=self.last_t if self.last_t > float("-inf") else 0.0, sensor=self.id,
@@ -102,9 +120,9 @@ class SensorAgent(Service):
             return
         detector = TransitionDetector(deployment, hosted)
         self.sent = 0
-        self.recent: deque[Transition] = deque()  # the transitions sent in the last RESUME_SPAN s
+        self.recent: deque[Sent] = deque()  # the transitions sent in the last RESUME_SPAN s
+        self.trail: deque[Sent] = deque()  # every sensor's history, oldest first (to trim them)
         self.acked = float("-inf")  # the last clock tick acknowledged
-        self.forgotten_at = float("-inf")  # event time of the last trim of the histories
         self.hosted = {sid: HostedSensor(sid, detector, self) for sid in hosted}
         checkpoint = self.load_checkpoint()
         if checkpoint is not None and set(checkpoint["sensors"]) == set(self.hosted):
@@ -123,9 +141,10 @@ class SensorAgent(Service):
         while it was down (replay holds the clock meanwhile)."""
         self.sent = checkpoint["sent"]
         for fields in checkpoint.get("recent", ()):
-            transition = Transition(**dict(zip(TRANSITION_FIELDS, fields)))
+            saved = dict(zip(TRANSITION_FIELDS, fields))
+            transition = Sent(**{name: saved[name] for name in Sent._fields})
             self.recent.append(transition)
-            self.hosted[transition.sensor].history.append(transition)
+            self.hosted[transition.sensor].remember(transition)
         detector = checkpoint["detector"]
         for sid, last_t in checkpoint["sensors"].items():
             hosted = self.hosted[sid]
@@ -167,7 +186,7 @@ class SensorAgent(Service):
         if self.checkpoint_path() is None:
             return
         detector = next(iter(self.hosted.values())).detector if self.hosted else None
-        recent = [tuple(getattr(tr, name) for name in TRANSITION_FIELDS) for tr in self.recent]
+        recent = [(SCHEMA_VERSION, *tr) for tr in self.recent]
         self.save_checkpoint({"tick": tick, "sent": self.sent, "detector": detector, "recent": recent,
                               "sensors": {sid: h.last_t for sid, h in self.hosted.items()}})
 
@@ -199,13 +218,17 @@ class SensorAgent(Service):
         message = self.read(Clock, sample)
         if message is None:
             return
-        if message.t - self.forgotten_at >= FORGET_EVERY:
-            self.forgotten_at = message.t
-            for hosted in self.hosted.values():
-                hosted.forget_before(message.t - HISTORY_SPAN)
+        self._forget_before(message.t - HISTORY_SPAN)
         self.acked = message.t
         self._checkpoint(message.t)
         self.report_progress(message.t, sent=self.sent)
+
+    def _forget_before(self, t: float) -> None:
+        """Drop the histories older than event time ``t`` (s): each transition is looked at once."""
+        while self.trail and self.trail[0].t < t:
+            history = self.hosted[self.trail.popleft().sensor].history
+            while history and history[0].t < t:
+                history.popleft()
 
     def on_eos(self, sample: zenoh.Sample) -> None:
         message = self.read(EndOfStream, sample)

@@ -116,3 +116,14 @@ def test_a_raw_sample_encoded_without_its_model_has_the_models_bytes():
 
     for t, sensor, value in ((1, "a", 1), (2.5, "n17", -1), (0.0, "s", 0)):
         assert encode_raw_sample(t, sensor, value) == encode(RawSample(t=t, sensor=sensor, value=value))
+
+
+def test_a_transition_encoded_without_its_model_has_the_models_bytes():
+    from bintrack.messages import Transition, encode, encode_transition
+    from bintrack.services.sensor_agent import TRANSITION_FIELDS, Sent
+
+    assert TRANSITION_FIELDS == ("version", *Sent._fields)  # the sensor agent's checkpoint layout
+    for fields in ((1.5, "a", 1, 0, 1, "agent-1", 7), (20.25, "n17", 0, 1, 12, None, None)):
+        assert encode_transition(*fields) == encode(Transition(**dict(zip(Sent._fields, fields))))
+    sent = Sent(3.0, "a", 1, 0, 2, "agent-1", 9)
+    assert encode_transition(*sent) == encode(sent.message())

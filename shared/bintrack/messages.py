@@ -498,6 +498,14 @@ def encode_raw_sample(t: float, sensor: str, value: int) -> bytes:
                          use_bin_type=True)
 
 
+def encode_transition(t: float, sensor: str, value: int, previous: int, seq: int, source: str | None = None,
+                      source_seq: int | None = None) -> bytes:
+    """``encode(Transition(...))`` of these fields without building the model, for fields valid
+    by construction (a sensor agent's, from a validated sample)."""
+    return msgpack.packb({"version": SCHEMA_VERSION, "t": t, "sensor": sensor, "value": value, "previous": previous,
+                          "seq": seq, "source": source, "source_seq": source_seq}, use_bin_type=True)
+
+
 def decode(cls: type[M], payload: bytes | bytearray | memoryview) -> M:
     """Decode and validate ``payload`` as ``cls``; raises :class:`MessageError` on any fault."""
     try:

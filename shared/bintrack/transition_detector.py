@@ -26,14 +26,20 @@ class TransitionDetector:
 
     def update(self, event: Event) -> Transition | None:
         """The transition ``event`` causes, or None when it repeats the sensor's status."""
+        change = self.change(event)
+        if change is None:
+            return None
+        return Transition(t=event.t, sensor=event.sensor, value=event.value, previous=change[0], seq=change[1])
+
+    def change(self, event: Event) -> tuple[int, int] | None:
+        """(previous status, seq) of the transition ``event`` causes, or None when it repeats the
+        sensor's status: :meth:`update` without building the message."""
         previous = self._status[event.sensor]
         if event.value == previous and event.sensor not in self._instant:
             return None
         self._status[event.sensor] = event.value
         self._seq[event.sensor] += 1
-        return Transition(
-            t=event.t, sensor=event.sensor, value=event.value, previous=previous, seq=self._seq[event.sensor]
-        )
+        return previous, self._seq[event.sensor]
 
     def status(self, sensor: str) -> tuple[int, int]:
         """(current status, seq of the last transition) of ``sensor``."""

@@ -396,8 +396,12 @@ class Service:
         """Put ``message`` on ``key_expr``. It waits while the way to the router is full rather
         than drop (Zenoh's default for puts): a burst, such as a tracker's outputs at the end of
         a stream, must reach the recorder whole."""
+        self.put(key_expr, encode(message))
+
+    def put(self, key_expr: str, payload: bytes) -> None:
+        """Put an encoded message on ``key_expr`` (waits while the way is full, as :meth:`publish`)."""
         assert self.session is not None
-        self.session.put(key_expr, encode(message), congestion_control=zenoh.CongestionControl.BLOCK)
+        self.session.put(key_expr, payload, congestion_control=zenoh.CongestionControl.BLOCK)
 
     def decode(self, cls: type, sample: zenoh.Sample):
         """The message in ``sample``, or None (counted and logged once per sender) if bad."""
