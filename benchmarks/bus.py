@@ -20,6 +20,10 @@ Everything runs on loopback (127.0.0.1) through one Zenoh router embedded in thi
    waits until every consumer acknowledged the tick ``--max-ahead`` (16) before it; the
    services acknowledge every 8 ticks or 5 ms. Also: CPU seconds of each service per 1 000
    transitions (user + system of the process, start-up included).
+   Beside it, in the same run, ``benchmarks/bare_chain.py``: the same number of messages
+   through three bare Python processes of the pipeline's shape (put pre-encoded samples →
+   unpack, pack, put → keep in memory), no validation, flow control or file; the least a
+   pipeline of one Zenoh message per transition costs in this Python (median of 3).
 3. **Full stack**: ``replay --speed 0`` → ``sensor_agent`` → ``basestation --tracker mcmcda``
    → ``recorder`` on a simulated grid of 10 people for 3600 s of event time; event time / wall
    time (× real time), CPU per service per 1 000 transitions, beside the same tracker run
@@ -282,6 +286,7 @@ class PipelineResult:
     event_span: float
     ticks: int
     runs: list[PipelineRun]
+    bare: list[float]  # transitions/s of the bare chain, per run
 
     @property
     def median(self) -> PipelineRun:
@@ -298,8 +303,38 @@ def pipeline(children: Children, session: zenoh.Session, work: Path) -> Pipeline
     span = sim.events[-1].t - sim.events[0].t
     ticks = int(math.floor(sim.events[-1].t / FAST_PERIOD) - math.floor(sim.events[0].t / FAST_PERIOD)) + 2
     say(f"pipeline dataset: {events} events over {span:.0f} s of event time ({events / ticks:.1f} per clock tick)")
-    runs = [pipeline_run(children, session, source, work, k) for k in range(1, PIPELINE_RUNS + 1)]
-    return PipelineResult(events, span, ticks, runs)
+    runs, bare = [], []
+    for k in range(1, PIPELINE_RUNS + 1):
+        runs.append(pipeline_run(children, session, source, work, k))
+        bare.append(bare_chain(children, events, work, k))
+    return PipelineResult(events, span, ticks, runs, bare)
+
+
+def bare_chain(children: Children, n: int, work: Path, k: int) -> float:
+    """Transitions/s of ``benchmarks/bare_chain.py`` with ``n`` messages (sink, relay, source)."""
+    script = str(Path(__file__).with_name("bare_chain.py"))
+    procs = {}
+    for role in ("sink", "relay", "source"):
+        with open(work / f"bare{k}-{role}.log", "w") as log:
+            procs[role] = subprocess.Popen([sys.executable, script, role, children.endpoint, str(n)],
+                                           stdout=subprocess.PIPE if role == "sink" else log, stderr=log,
+                                           stdin=subprocess.DEVNULL, cwd=REPO, env=children.env, text=True)
+    try:
+        out, _ = procs["sink"].communicate(timeout=300.0)
+        for proc in procs.values():
+            if proc.wait(30.0) != 0:
+                raise RuntimeError(f"bare chain run {k}: {proc.args[2]} exited with status {proc.returncode}")
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    fields = out.split()
+    if len(fields) != 4 or fields[0] != "RATE" or int(fields[2]) != n:
+        raise RuntimeError(f"bare chain run {k}: unexpected output {out!r}")
+    rate = float(fields[1])
+    say(f"bare chain run {k}/{PIPELINE_RUNS}: {n} transitions at {rate:,.0f} transitions/s")
+    return rate
 
 
 def pipeline_run(children: Children, session: zenoh.Session, source: Path, work: Path, k: int) -> PipelineRun:
@@ -551,6 +586,9 @@ def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyRe
     transitions_rate = run.rate
     rows.append((f"pipeline replay → sensor_agent → recorder, --speed 0, median of {len(pipe.runs)}",
                  f"{transitions_rate:,.0f}", "transitions/s"))
+    bare_median = statistics.median(pipe.bare)
+    rows.append((f"  beside it: bare Python chain of the same shape (bare_chain.py), median of {len(pipe.bare)}",
+                 f"{bare_median:,.0f}", "transitions/s"))
     rows.append(("  same run: raw samples", f"{run.raw / run.wall:,.0f}", "samples/s"))
     rows.append(("  same run: clock ticks (flow-control round trips)", f"{pipe.ticks / run.wall:,.0f}", "ticks/s"))
     rows.append(("  same run: wall time, first raw sample → recorder done", f"{run.wall:.2f}", "s"))
@@ -585,6 +623,9 @@ def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyRe
     lines.append("")
     lines.append(f"ratio pipeline / raw Zenoh: {transitions_rate:,.0f} / {raw_median:,.0f} = "
                  f"{transitions_rate / raw_median:.4f} (1 : {raw_median / transitions_rate:,.0f})")
+    lines.append(f"ratio bare chain / raw Zenoh: {bare_median:,.0f} / {raw_median:,.0f} = "
+                 f"{bare_median / raw_median:.4f} (1 : {raw_median / bare_median:,.1f}); "
+                 f"pipeline / bare chain: 1 : {bare_median / transitions_rate:,.1f}")
     lines.append("")
     lines.append(f"pipeline runs: {', '.join(f'{r.rate:,.0f}' for r in pipe.runs)} transitions/s; per transition "
                  "the bus carries 2 puts and 3 deliveries (raw → sensor_agent and recorder, transition → "
