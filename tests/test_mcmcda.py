@@ -318,3 +318,15 @@ def test_mcmcda_parameters_in_metres_convert_to_feet():
 def test_a_parameter_out_of_range_is_refused(field, value):
     with pytest.raises(ValueError, match=field):
         MCMCDAConfig(**{field: value})
+
+
+def test_the_fast_draw_gives_randranges_draws():
+    import random
+
+    from bintrack.trackers.multi.mcmcda import _below
+
+    for seed in range(5):
+        ours, theirs = random.Random(seed), random.Random(seed)
+        for n in (1, 2, 3, 7, 8, 9, 100, 1023, 1024, 1025):
+            assert [_below(ours, n) for _ in range(200)] == [theirs.randrange(n) for _ in range(200)]
+        assert ours.random() == theirs.random()  # and the stream goes on in step

@@ -197,6 +197,17 @@ class _Gate:
             self.all.update(rids)
 
 
+def _below(rng: random.Random, n: int) -> int:
+    """``rng.randrange(n)`` for ``n`` ≥ 1 with the same draws (CPython's ``_randbelow``), without
+    its argument checks: the moves draw a few numbers each, and randrange's frames showed."""
+    getrandbits = rng.getrandbits
+    k = n.bit_length()
+    r = getrandbits(k)
+    while r >= n:
+        r = getrandbits(k)
+    return r
+
+
 @dataclass(slots=True)
 class _Track:
     reports: tuple[int, ...]
@@ -453,12 +464,12 @@ class OnlineMCMCDA:
             span = min(c.max_misses + 1, self._scan - gate.scan)
             if span < 1:
                 return added, logq
-            d = rng.randrange(1, span + 1)  # randint(1, span), one call less
+            d = 1 + _below(rng, span)  # randint(1, span)
             # candidates lie after every report added so far, so none of those is among them
             cands = [r for r in gate.at.get(gate.scan + d, ()) if r in free]
             if not cands:
                 return added, logq + math.log(1.0 / span)
-            rid = rng.choice(cands)
+            rid = cands[_below(rng, len(cands))]
             logq += -math.log(span) - math.log(len(cands)) + (math.log1p(-c.stop) if (added or not must) else 0.0)
             added.append(rid)
             gate = gates[rid]
@@ -493,7 +504,7 @@ class OnlineMCMCDA:
         best, best_score = start, sum(self._score(t) for t in start)
         moves = (self._birth, self._death, self._split, self._merge, self._extension, self._reduction,
                  self._update, self._switch)
-        birth, score_of, randrange, random_ = self._birth, self._score, self._rng.randrange, self._rng.random
+        birth, score_of, getrandbits, random_ = self._birth, self._score, self._rng.getrandbits, self._rng.random
         for _ in range(self.config.chains):
             self._now: dict = {}
             tracks = [_Track(t.reports, t.anchor, t.label) for t in start]
@@ -502,7 +513,13 @@ class OnlineMCMCDA:
             free = {rid for _, _, ids in self._scans for rid in ids} - used
             score = sum(scores)
             for _ in range(self.config.n_mc):
-                move = birth if not tracks else moves[randrange(8)]
+                if tracks:
+                    m = getrandbits(4)  # _below(rng, 8) inline: the one draw of every iteration
+                    while m >= 8:
+                        m = getrandbits(4)
+                    move = moves[m]
+                else:
+                    move = birth
                 proposal = move(tracks, free)
                 if proposal is None:
                     continue
@@ -583,7 +600,7 @@ class OnlineMCMCDA:
         starts = self._starts(free)
         if not starts:
             return None
-        first = self._rng.choice(starts)
+        first = starts[_below(self._rng, len(starts))]
         rest, logq = self._extend(self._gates[first], free, must=True)
         if not rest:
             return None
@@ -595,7 +612,7 @@ class OnlineMCMCDA:
         mortal = self._mortal(tracks)
         if not mortal:
             return None
-        i = self._rng.choice(mortal)
+        i = mortal[_below(self._rng, len(mortal))]
         return self._once(("death", i), self._death_of, tracks, free, i)
 
     def _death_of(self, tracks, free, i: int):
@@ -609,11 +626,11 @@ class OnlineMCMCDA:
         choices = self._splittable(tracks)
         if not choices:
             return None
-        i = self._rng.choice(choices)
+        i = choices[_below(self._rng, len(choices))]
         t = tracks[i]
         lo = 0 if t.anchor is not None else 2
         points = range(lo, len(t.reports) - 1)  # first part keeps reports[:r]
-        r = self._rng.choice(points)
+        r = points[_below(self._rng, len(points))]
         return self._once(("split", i, r), self._split_at, tracks, i, r, len(points))
 
     def _split_at(self, tracks, i: int, r: int, points: int):
@@ -627,7 +644,7 @@ class OnlineMCMCDA:
         pairs = self._mergeable(tracks)
         if not pairs:
             return None
-        i, j = self._rng.choice(pairs)
+        i, j = pairs[_below(self._rng, len(pairs))]
         return self._once(("merge", i, j), self._merged, tracks, i, j)
 
     def _merged(self, tracks, i: int, j: int):
@@ -639,7 +656,7 @@ class OnlineMCMCDA:
         return [i, j], [merged], self._ratio_k(len(tracks), len(tracks) - 1, -math.log(len(self._mergeable(tracks))), reverse)
 
     def _extension(self, tracks, free):
-        i = self._rng.randrange(len(tracks))
+        i = _below(self._rng, len(tracks))
         t = tracks[i]
         added, logq = self._extend(self._gate(t), free, must=True)
         if not added:
@@ -652,12 +669,12 @@ class OnlineMCMCDA:
     def _cut(self, tracks, keep: int):
         """A random track and a random cut in its window reports, leaving at least ``keep`` of
         them before the cut when it has no anchor: (index, cut), or None."""
-        i = self._rng.randrange(len(tracks))
+        i = _below(self._rng, len(tracks))
         t = tracks[i]
         lo = 0 if t.anchor is not None else keep
         if len(t.reports) <= lo:
             return None
-        return i, self._rng.randrange(lo, len(t.reports))
+        return i, lo + _below(self._rng, len(t.reports) - lo)
 
     def _reduction(self, tracks, free):
         cut = self._cut(tracks, keep=2)
@@ -701,7 +718,7 @@ class OnlineMCMCDA:
         scans_a, scans_b, both = self._once(("scans", i, j), self._switch_scans, tracks[i], tracks[j])
         if len(both) < 2:
             return None
-        cut = self._rng.choice(both[:-1])  # switch the reports after scan ``cut``
+        cut = both[_below(self._rng, len(both) - 1)]  # switch the reports after scan ``cut`` (not the last)
         return self._once(("switch", i, j, cut), self._switched, tracks, i, j, bisect_right(scans_a, cut), bisect_right(scans_b, cut))
 
     def _switch_scans(self, a: _Track, b: _Track):
