@@ -83,10 +83,11 @@ class UpstreamWatermark:
     is gone for good), so that what it sends after a restart is not late. The replay holds event
     time while an awaited service is gone, but up to its lead (``--max-ahead`` clock periods, the
     ``lead`` given to :meth:`bound`) of ticks it sent before may still be on their way: they
-    arrive on another path than the departure, so they must not use up the hold. Until an instance of each of ``services`` has been seen it is −inf: their
-    first outputs may arrive after the first ticks, and a liveliness token comes on another path
-    than the clock, so the clock alone must not release past them. Once every instance seen has
-    gone for good it is +inf (the clock alone bounds).
+    arrive on another path than the departure, so they must not use up the hold. Until an
+    instance of each of ``services`` has been seen it is −inf: their first outputs may arrive
+    after the first ticks, and a liveliness token comes on another path than the clock, so the
+    clock alone must not release past them. Once every instance seen has gone for good it is
+    +inf (the clock alone bounds).
     """
 
     def __init__(self, services, hold: float):
