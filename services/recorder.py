@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import math
 import os
 import time
 from collections import deque
@@ -36,7 +37,7 @@ from bintrack.live.bus import Service, UpstreamDone, add_bus_arguments, service_
 from bintrack.errors import CommandError
 from bintrack.keys import parse_key
 from bintrack.formats import FormatError
-from bintrack.messages import MessageError, TrackSet, decode, decode_view
+from bintrack.messages import MessageError, TrackSet, decode, decode_view, is_resent
 from bintrack.live.recording import KIND_TYPES, RecordingWriter, event_time, open_recording
 
 log = logging.getLogger("bintrack")
@@ -112,6 +113,8 @@ class Recorder(Service):
         self.last_tracks = float("-inf")  # event time of the newest track set recorded
         self.recent: dict[str, deque[bytes]] = {}
         self.parsed: dict[str, tuple] = {}  # key → (its ParsedKey, its message type)
+        self.raw_last: dict[str, float] = {}  # raw key → event time of the newest sample recorded (keys of parsed)
+        self.resent_dropped = 0  # raw samples a restarted replay sent again that were already recorded
         self.gone: set[str] = set()  # alive/ keys of services that went away
         self.dedupe_left = 0  # result messages still checked for duplicates after a return
         self.gap_from: float | None = None  # after a restart: event time up to which the file was kept
@@ -210,6 +213,7 @@ class Recorder(Service):
                 return
             if len(self.parsed) >= PARSED_KEYS:
                 self.parsed.clear()
+                self.raw_last.clear()
             self.parsed[key] = known
         parsed, cls = known
         if parsed.kind in ("progress", "region_progress"):
@@ -230,7 +234,17 @@ class Recorder(Service):
                 return
         t = event_time(message)
         t = self.last_t if t is None else t
-        if parsed.kind == "clock":
+        if parsed.kind == "raw":
+            if sample.attachment is not None and t <= self.raw_last.get(key, -math.inf) \
+                    and is_resent(sample.attachment.to_bytes()):
+                self.resent_dropped += 1  # a restarted replay sent it again; it is here already
+                return
+            self.raw_last[key] = t
+        elif parsed.kind == "clock":
+            if self.resent_dropped:
+                log.info("recorder: %d raw samples a restarted replay sent again were already recorded; "
+                         "recorded once", self.resent_dropped)
+                self.resent_dropped = 0
             self._maybe_split(t)  # a new file starts with a clock tick
         if self.gap_from is not None and parsed.kind in ("clock", "eos"):
             # the first tick after a restart, or the end of stream if no tick follows (a kill

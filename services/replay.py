@@ -34,7 +34,7 @@ from bintrack.live.control_guard import control_attachment
 from bintrack.errors import CommandError
 from bintrack.formats import FormatError, TruthRow, open_dataset
 from bintrack.keys import Keys, parse_key
-from bintrack.messages import Clock, EndOfStream, TruthSample, encode, encode_raw_sample
+from bintrack.messages import RESENT, Clock, EndOfStream, TruthSample, encode, encode_raw_sample
 from bintrack.live.recording import Record, open_recording, replay_items, shift_payload
 from bintrack.live.replay_schedule import (TICK_FASTEST, TICK_WALL, Consumers, End, Pacer, Publish, Tick,
                                            default_clock_period, schedule)
@@ -232,9 +232,10 @@ class Replay(Service):
             return events
         return replay_items(self.recording, self._keep)
 
-    def _publish(self, action: Publish, put: bool = True) -> None:
+    def _publish(self, action: Publish, put: bool = True, attachment: bytes | None = None) -> None:
         """Publish the sample of ``action`` and keep a raw sample for ``recent``; with ``put``
-        False only keep it (a restarted replay rebuilding what it had published)."""
+        False only keep it (a restarted replay rebuilding what it had published). A raw sample
+        goes with ``attachment`` (:data:`RESENT` or None)."""
         item = action.item
         if isinstance(item, Record):
             if put:
@@ -246,7 +247,7 @@ class Replay(Service):
             key = self.raw_keys.get(item.sensor) or self.raw_keys.setdefault(item.sensor, self.keys.raw(item.sensor))
             payload = encode_raw_sample(action.t, item.sensor, item.value)
             if put:
-                self._put(key, payload)
+                self._put(key, payload, attachment)
             self.recent.append((-math.inf if self.last_tick is None else self.last_tick, key, payload))
 
     def _ticked(self, t: float, save: bool = True) -> None:
@@ -272,6 +273,15 @@ class Replay(Service):
                     return
             elif isinstance(action, Publish):
                 self._publish(action, put=False)
+
+    def _send_again(self) -> int:
+        """After a restart, before anything new: put the raw samples of the last ticks again,
+        marked :data:`RESENT`. The killed instance checkpointed each tick once it had put it,
+        but what it put last may still have been in its send path; every consumer has
+        acknowledged the ticks before these, so nothing older can be missing. How many."""
+        for _, key, payload in self.recent:
+            self._put(key, payload, RESENT)
+        return len(self.recent)
 
     def _missing(self) -> list[str]:
         """The --wait-for services with no live instance, and the router if it is lost."""
@@ -357,9 +367,14 @@ class Replay(Service):
         started = last_said = yielded_at = time.monotonic()
         skip_ack = False
         if self.resume_after is not None:  # a restart: what the previous instance published is done
-            log.info("replay: restarted; resuming after the tick at t=%g s (%d samples were published)",
-                     self.resume_after, self.published)
-            self.resume_after, skip_ack = None, True
+            resent = self._send_again()
+            log.info("replay: restarted; resuming after the tick at t=%g s (%d samples were published); sent "
+                     "the %d raw samples of its last %d ticks again, and marks those up to its next tick "
+                     "(receivers keep those they lack)", self.resume_after, self.published, resent,
+                     len(self.recent_ticks))
+            self.resume_after, skip_ack, again = None, True, RESENT
+        else:
+            again = None
         for action in self.plan:
             quick = isinstance(action, Publish) and not self.wanted_missing and self.router_lost_at is None
             if not quick and not await self._ready_for(action, skip_ack):  # (a sample owes no acknowledgement)
@@ -381,13 +396,14 @@ class Replay(Service):
             if self.stopping.is_set():
                 break
             if isinstance(action, Tick):
+                again = None
                 self._put(self.keys.clock(), encode(Clock(t=action.t)), control)
                 self._ticked(action.t)
                 if time.monotonic() - yielded_at >= YIELD_EVERY:
                     await asyncio.sleep(0)  # let signals and progress reports in
                     yielded_at = time.monotonic()
             else:
-                self._publish(action)
+                self._publish(action, attachment=again)  # (the killed instance may have put it)
                 self.published += 1
             now = time.monotonic()
             if now - last_said >= PROGRESS_INTERVAL:

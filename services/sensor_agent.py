@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
-from collections import deque
+from collections import Counter, deque
 from typing import NamedTuple
 
 import zenoh
@@ -22,7 +22,7 @@ from bintrack.live.bus import Service, add_bus_arguments, log, service_main
 from bintrack.formats import Event, check_value
 from bintrack.keys import parse_key
 from bintrack.messages import (SCHEMA_VERSION, Clock, EndOfStream, MessageError, RawSample, SensorState, Transition,
-                                decode_view, encode, encode_transition)
+                                decode_view, encode, encode_transition, is_resent)
 from bintrack.regions import RegionMap
 from bintrack.transition_detector import TransitionDetector
 
@@ -123,6 +123,7 @@ class SensorAgent(Service):
         self.recent: deque[Sent] = deque()  # the transitions sent in the last RESUME_SPAN s
         self.trail: deque[Sent] = deque()  # every sensor's history, oldest first (to trim them)
         self.acked = float("-inf")  # the last clock tick acknowledged
+        self.resent = Counter()  # raw samples a restarted replay sent again: new (True) or already here (False)
         self.hosted = {sid: HostedSensor(sid, detector, self) for sid in hosted}
         checkpoint = self.load_checkpoint()
         if checkpoint is not None and set(checkpoint["sensors"]) == set(self.hosted):
@@ -210,8 +211,15 @@ class SensorAgent(Service):
             self.bad.report(key, problem)
             return
         hosted = self.hosted.get(raw.sensor)
-        if hosted is not None:  # else another agent's sensor
-            hosted.handle(raw)
+        if hosted is None:  # another agent's sensor
+            return
+        if sample.attachment is not None and is_resent(sample.attachment.to_bytes()):
+            # sent again by a restarted replay: new only if later than what this sensor has
+            if raw.t <= hosted.last_t:
+                self.resent[False] += 1
+                return
+            self.resent[True] += 1
+        hosted.handle(raw)
 
     def on_clock(self, sample: zenoh.Sample) -> None:
         """A clock tick is acknowledged at once: every sample before it has been handled."""
@@ -219,6 +227,10 @@ class SensorAgent(Service):
         if message is None:
             return
         self._forget_before(message.t - HISTORY_SPAN)
+        if self.resent:
+            log.info("%s: of the raw samples a restarted replay sent again, %d were new and %d already handled",
+                     self.name, self.resent[True], self.resent[False])
+            self.resent.clear()
         self.acked = message.t
         self._checkpoint(message.t)
         self.report_progress(message.t, sent=self.sent)

@@ -14,6 +14,7 @@ service subprocesses, nothing mocked.
 from __future__ import annotations
 
 import ast
+import itertools
 import math
 import re
 import signal
@@ -41,9 +42,11 @@ from bintrack.messages import (
     Region,
     SensorState,
     TrackSet,
+    RESENT,
     Transition,
     decode,
     encode,
+    is_resent,
 )
 from bintrack.live.recording import KIND_TYPES, open_recording
 
@@ -417,6 +420,83 @@ def test_a_restarted_sensor_agent_still_serves_what_it_sent_before_its_checkpoin
     assert [state.missed for state in replies] == [before], restarted.log
     assert "restarted; resuming from its checkpoint" in restarted.log
     assert restarted.stop() == 0
+
+
+def test_raw_samples_a_restarted_replay_sends_again_are_taken_once(tmp_path, zenoh_router, services, bus):
+    """What a restarted replay sends again (marked RESENT) is handled by the sensor agent and
+    recorded by the recorder only where it is newer than their last sample of that sensor: the
+    ones the kill caught in the dead replay's send path. The others are dropped silently (they
+    are no fault), and each says how many of each it saw."""
+    out = tmp_path / "run.mcap"
+    agent = services("sensor_agent", "--sensors", "n0,n1", "--net", NET, endpoint=zenoh_router)
+    recorder = services("recorder", "--out", str(out), "--net", NET, endpoint=zenoh_router)
+    bus.wait_for("sensor_agent", agent)
+    bus.wait_for("recorder", recorder)
+    bus.put("raw/n0", RawSample(t=1.0, sensor="n0", value=1))
+    bus.tick(1.5, "sensor_agent", agent)
+    bus.tick(1.5, "recorder", recorder)
+    for sample in (RawSample(t=1.0, sensor="n0", value=1),  # had arrived
+                   RawSample(t=2.0, sensor="n0", value=0), RawSample(t=2.0, sensor="n1", value=1)):  # had not
+        bus.session.put(f"{bus.keys.prefix}/raw/{sample.sensor}", encode(sample), attachment=RESENT)
+    bus.tick(2.5, "sensor_agent", agent)
+    bus.tick(2.5, "recorder", recorder)
+    assert [(m.t, m.sensor, m.value) for _, m in bus.messages("transition")] == [
+        (1.0, "n0", 1), (2.0, "n0", 0), (2.0, "n1", 1)]
+    assert agent.stop() == 0 and recorder.stop() == 0
+    assert "of the raw samples a restarted replay sent again, 2 were new and 1 already handled" in agent.log
+    assert "1 raw samples a restarted replay sent again were already recorded; recorded once" in recorder.log
+    for log in (agent.log, recorder.log):
+        assert "bad payload" not in log, log
+    raw = [(r.key.removeprefix(f"bintrack/{NET}/"), r.t) for r in open_recording(out).records() if "/raw/" in r.key]
+    assert raw == [("raw/n0", 1.0), ("raw/n0", 2.0), ("raw/n1", 2.0)]
+
+
+def test_a_restarted_replay_sends_the_samples_of_its_last_ticks_again_first(tmp_path, zenoh_router, services):
+    """A replay SIGKILLed mid-run, restarted from its checkpoint: before its first tick it puts
+    marked RESENT the raw samples of its last ticks (a kill may have caught them in its send
+    path) and those after the tick it checkpointed (the killed one may have put them too)."""
+    dataset = write_foreign_dataset(tmp_path / "ds", nodes=400)
+    state_dir = tmp_path / "state"
+    state_dir.mkdir(mode=0o700)
+    bus = Bus(zenoh_router, open_dataset(dataset).deployment, serve_deployment=False)
+    lock, seen = threading.Lock(), []  # (kind, payload, marked RESENT) of raw samples and ticks, in arrival order
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        kind = kind_of(str(sample.key_expr))
+        if kind in ("raw", "clock"):
+            with lock:
+                seen.append((kind, sample.payload.to_bytes(),
+                             sample.attachment is not None and is_resent(sample.attachment.to_bytes())))
+
+    listener = bus.session.declare_subscriber(bus.keys.all(), on_sample)
+    bus.play("sensor_agent")
+    args = (str(dataset), "--speed", "0", "--clock-period", "1", "--max-ahead", "6", "--wait-for", "sensor_agent",
+            "--id", "r0", "--state-dir", str(state_dir))
+    try:
+        replay = services("replay", *args, endpoint=zenoh_router)
+        wait_until(lambda: "ready on" in replay.log, "the replay to come up", logs=[replay])
+        # the played agent has handled everything up to 20 s: the replay goes on to 26 s, then waits
+        bus.session.put(bus.keys.progress("sensor_agent", "test"), encode(Clock(t=20.0)),
+                        attachment=control_attachment("sensor_agent", "test"))
+        wait_until(lambda: "waiting for progress" in replay.log, "the replay to wait for progress", logs=[replay])
+        replay.proc.send_signal(signal.SIGKILL)
+        assert replay.wait(HUNG) == -signal.SIGKILL
+        with lock:
+            before = len(seen)
+        first = [payload for kind, payload, _ in seen[:before] if kind == "raw"]
+        wait_until(lambda: bus.keys.alive("replay", "r0") not in bus.alive("replay"), "the killed replay's token to go")
+        restarted = services("replay", *args, endpoint=zenoh_router)
+        wait_until(lambda: any(kind == "clock" for kind, _, _ in seen[before:]), "a tick of the restarted replay",
+                   logs=[restarted])
+        with lock:
+            after = list(itertools.takewhile(lambda item: item[0] == "raw", seen[before:]))
+    finally:
+        listener.undeclare()
+        bus.close()
+    assert restarted.stop() == 0
+    count = int(re.search(r"sent the (\d+) raw samples of its last \d+ ticks again", restarted.log).group(1))
+    assert 0 < count <= len(after) < len(first)
+    assert after == [("raw", payload, True) for payload in first[-len(after):]], restarted.log
 
 
 def test_a_recorder_killed_after_the_last_tick_logs_its_loss_at_the_end_of_stream(tmp_path, zenoh_router,

@@ -332,8 +332,9 @@ def test_oversized_payloads_are_refused_unread_and_memory_stays_flat(zenoh_route
         rss = []
         for burst in range(4):
             rss.append(rss_kb(agent.proc.pid))
-            for _ in range(2):
-                session.put(keys.raw(sensor), b"\x00" * (10 * 1024 * 1024))
+            for _ in range(2):  # blocking: with the default (drop) a full queue could lose one on the way
+                session.put(keys.raw(sensor), b"\x00" * (10 * 1024 * 1024),
+                            congestion_control=zenoh.CongestionControl.BLOCK)
             session.put(keys.raw(sensor), encode(RawSample(t=1.0 + burst, sensor=sensor, value=(burst + 1) % 2)))
             progress.clear()
             session.put(keys.clock(), encode(Clock(t=1.5 + burst)), attachment=control)

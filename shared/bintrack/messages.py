@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import re
+from functools import lru_cache
 from typing import Annotated, Any, Literal, TypeVar, Union
 
 import msgpack
@@ -504,6 +505,22 @@ def encode_transition(t: float, sensor: str, value: int, previous: int, seq: int
     by construction (a sensor agent's, from a validated sample)."""
     return msgpack.packb({"version": SCHEMA_VERSION, "t": t, "sensor": sensor, "value": value, "previous": previous,
                           "seq": seq, "source": source, "source_seq": source_seq}, use_bin_type=True)
+
+
+RESENT = msgpack.packb({"resent": True})
+"""The attachment of a raw sample that a restarted replay sends again (a kill may have caught
+it in the dead instance's send path): a receiver keeps it only if it is newer than the last
+sample it has of that sensor."""
+
+
+@lru_cache(maxsize=64)  # the attachments on raw keys are few (none, or a replay's one or two)
+def is_resent(attachment: bytes) -> bool:
+    """Whether a sample's attachment (bytes) marks it as sent again (:data:`RESENT`)."""
+    try:
+        body = msgpack.unpackb(attachment)
+    except Exception:  # msgpack raises several unrelated types
+        return False
+    return isinstance(body, dict) and body.get("resent") is True
 
 
 def decode(cls: type[M], payload: bytes | bytearray | memoryview) -> M:
