@@ -330,3 +330,16 @@ def test_the_fast_draw_gives_randranges_draws():
         for n in (1, 2, 3, 7, 8, 9, 100, 1023, 1024, 1025):
             assert [_below(ours, n) for _ in range(200)] == [theirs.randrange(n) for _ in range(200)]
         assert ours.random() == theirs.random()  # and the stream goes on in step
+
+
+def test_a_chain_with_nothing_to_propose_draws_nothing():
+    """With no track and no report a track may begin with (an empty window, or reports in the
+    newest scan only), the only move, a birth, has nothing to begin with and draws nothing: the
+    chain stops at once, and the stream is where running on would have left it."""
+    tracker = OnlineMCMCDA(MCMCDAConfig(seed=3))
+    before = tracker._rng.getstate()
+    tracker.step(PositionReports(t=0.0, reports=[]))
+    tracker.step(PositionReports(t=0.5, reports=[PositionReport(x=1.0, y=1.0, cov=((2.25, 0.0), (0.0, 2.25)))]))
+    assert tracker._rng.getstate() == before
+    tracker.step(PositionReports(t=1.0, reports=[PositionReport(x=1.5, y=1.0, cov=((2.25, 0.0), (0.0, 2.25)))]))
+    assert tracker._rng.getstate() != before  # a report to begin with: the chain runs

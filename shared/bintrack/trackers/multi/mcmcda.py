@@ -513,6 +513,8 @@ class OnlineMCMCDA:
             free = {rid for _, _, ids in self._scans for rid in ids} - used
             score = sum(scores)
             for _ in range(self.config.n_mc):
+                if not tracks and not self._starts(free):
+                    break  # only a birth could be proposed, and it has no report to begin with: nothing can change
                 if tracks:
                     m = getrandbits(4)  # _below(rng, 8) inline: the one draw of every iteration
                     while m >= 8:
