@@ -563,8 +563,12 @@ class OnlineMCMCDA:
         return out
 
     def _starts(self, free):
-        """The free reports a new track may begin with, in order."""
-        return self._once("starts", lambda: sorted(free.difference(self._latest)))
+        """The free reports a new track may begin with, in order (once per state of the chain;
+        not through _once: a birth asks for them at nearly every iteration of an empty state)."""
+        out = self._now.get("starts")
+        if out is None:
+            out = self._now["starts"] = sorted(free.difference(self._latest))
+        return out
 
     def _mortal(self, tracks):
         """Indices of the tracks without an anchor, which a death may remove."""
