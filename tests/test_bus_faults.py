@@ -474,11 +474,13 @@ def test_a_restarted_replay_sends_the_samples_of_its_last_ticks_again_first(tmp_
             "--id", "r0", "--state-dir", str(state_dir))
     try:
         replay = services("replay", *args, endpoint=zenoh_router)
-        wait_until(lambda: "ready on" in replay.log, "the replay to come up", logs=[replay])
-        # the played agent has handled everything up to 20 s: the replay goes on to 26 s, then waits
+        # once the first tick is out, the replay has seen the played agent (it waits for one):
+        # the agent has handled everything up to 20 s, so the replay goes on to 26 s, then waits
+        wait_until(lambda: any(kind == "clock" for kind, _, _ in seen), "the replay's first tick", logs=[replay])
         bus.session.put(bus.keys.progress("sensor_agent", "test"), encode(Clock(t=20.0)),
                         attachment=control_attachment("sensor_agent", "test"))
-        wait_until(lambda: "waiting for progress" in replay.log, "the replay to wait for progress", logs=[replay])
+        wait_until(lambda: any(float(ack) >= 20 for ack in re.findall(r"waiting for progress >= ([\d.]+)", replay.log)),
+                   "the replay to wait for progress past 20 s", logs=[replay])
         replay.proc.send_signal(signal.SIGKILL)
         assert replay.wait(HUNG) == -signal.SIGKILL
         with lock:
