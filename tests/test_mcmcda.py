@@ -343,3 +343,35 @@ def test_a_chain_with_nothing_to_propose_draws_nothing():
     assert tracker._rng.getstate() == before
     tracker.step(PositionReports(t=1.0, reports=[PositionReport(x=1.5, y=1.0, cov=((2.25, 0.0), (0.0, 2.25)))]))
     assert tracker._rng.getstate() != before  # a report to begin with: the chain runs
+
+
+def test_a_chain_whose_births_cannot_continue_draws_what_running_it_would(monkeypatch):
+    """With no track, and reports a track may begin with but none within reach of another (far
+    apart, or more than d̄ scans before), every birth fails at its first gap. The chain stops
+    at once, yet its stream goes on exactly as if every iteration had been run."""
+
+    def report(x):
+        return PositionReport(x=x, y=0.0, cov=((2.25, 0.0), (0.0, 2.25)))
+
+    scans = [PositionReports(t=0.5 * k, reports=[report(300.0 * k), report(300.0 * k + 150.0)][:1 + k % 2]) for k in range(8)]
+    scans += [PositionReports(t=4.0, reports=[report(0.0)]), PositionReports(t=4.5, reports=[report(1.0)])]
+
+    def run(fast: bool):
+        tracker = OnlineMCMCDA(MCMCDAConfig(seed=5, n_mc=300, chains=2))
+        if not fast:
+            monkeypatch.setattr(tracker, "_stuck", lambda free: False)
+        states, outputs = [], []
+        for scan in scans:
+            outputs.append(tracker.step(scan))
+            states.append(tracker._rng.getstate())
+        return states, outputs, tracker
+
+    calls = []
+    real = OnlineMCMCDA._fail_births
+    monkeypatch.setattr(OnlineMCMCDA, "_fail_births", lambda self, free, count: (calls.append(count), real(self, free, count)))
+    fast_states, fast_out, _ = run(fast=True)
+    assert len(calls) >= 2 * 6  # both chains of every scan from the second on (the eighth: one chain)
+    slow_states, slow_out, tracker = run(fast=False)
+    assert fast_states == slow_states
+    assert fast_out == slow_out
+    assert tracker._tracks  # the last two reports, 1 m apart, did begin a track

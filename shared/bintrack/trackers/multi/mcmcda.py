@@ -512,16 +512,21 @@ class OnlineMCMCDA:
             used = {r for t in tracks for r in t.reports}
             free = {rid for _, _, ids in self._scans for rid in ids} - used
             score = sum(scores)
-            for _ in range(self.config.n_mc):
-                if not tracks and not self._starts(free):
-                    break  # only a birth could be proposed, and it has no report to begin with: nothing can change
-                if tracks:
+            for it in range(self.config.n_mc):
+                if not tracks:
+                    # only a birth can be proposed: if it has no report to begin with, or every
+                    # report it may begin with has nothing to continue with, nothing can change
+                    if not self._starts(free):
+                        break
+                    if self._stuck(free):
+                        self._fail_births(free, self.config.n_mc - it)
+                        break
+                    move = birth
+                else:
                     m = getrandbits(4)  # _below(rng, 8) inline: the one draw of every iteration
                     while m >= 8:
                         m = getrandbits(4)
                     move = moves[m]
-                else:
-                    move = birth
                 proposal = move(tracks, free)
                 if proposal is None:
                     continue
@@ -569,6 +574,41 @@ class OnlineMCMCDA:
         if out is None:
             out = self._now["starts"] = sorted(free.difference(self._latest))
         return out
+
+    def _stuck(self, free) -> bool:
+        """With no track: True when no birth can be proposed, as no report a track may begin
+        with has a free report in its gate at any scan an extension may reach (once per state)."""
+        out = self._now.get("stuck")
+        if out is None:
+            out = self._now["stuck"] = not any(self._continuable(self._gates[first], free) for first in self._starts(free))
+        return out
+
+    def _continuable(self, gate: _Gate, free) -> bool:
+        """Whether ``_extend`` from ``gate`` finds a free report at some gap it may draw."""
+        return any(r in free for d in range(1, self._span(gate) + 1) for r in gate.at.get(gate.scan + d, ()))
+
+    def _span(self, gate: _Gate) -> int:
+        """How many scans after ``gate``'s an extension from it may reach in the window."""
+        return min(self.config.max_misses + 1, self._scan - gate.scan)
+
+    def _fail_births(self, free, count: int) -> None:
+        """Draw exactly what ``count`` births from a ``_stuck`` state draw: each a first report
+        (``_below(len(starts))``), then a gap (``_below(span)``) at which it finds nothing. The
+        state stays as it is; the stream ends where running the chain on would leave it."""
+        starts = self._starts(free)
+        getrandbits = self._rng.getrandbits
+        n, k = len(starts), len(starts).bit_length()
+        spans = [self._span(self._gates[first]) for first in starts]
+        bits = [span.bit_length() for span in spans]
+        for _ in range(count):
+            i = getrandbits(k)
+            while i >= n:
+                i = getrandbits(k)
+            span, b = spans[i], bits[i]
+            if span >= 1:
+                d = getrandbits(b)
+                while d >= span:
+                    d = getrandbits(b)
 
     def _mortal(self, tracks):
         """Indices of the tracks without an anchor, which a death may remove."""
