@@ -180,6 +180,9 @@ class _WholeGrid(target_fit._Scan):
     def _gains_on(self, rows, k=None, extra=()) -> np.ndarray:
         return self._whole(k, extra)[rows]
 
+    def _best_all(self, k, extra=()) -> int:
+        return int(np.argmax(self._whole(k, extra)))
+
 
 def _tracks(folder: Path) -> list[tuple]:
     dataset = open_dataset(folder)
@@ -195,3 +198,13 @@ def test_local_gain_updates_give_the_whole_grid_fit_exactly(name, monkeypatch):
     monkeypatch.setattr(target_fit, "_Scan", _WholeGrid)
     whole = _tracks(folder)
     assert len(local) > 50 and local == whole  # bit for bit: the same sums over the same sensors
+
+
+def test_the_cells_covering_some_sensors_are_the_union_of_their_cells_in_index_order():
+    fit = target_fit.TargetFit(GridFusion(grid_deployment()))
+    rng = np.random.default_rng(4)
+    n = len(fit._cells_of)
+    for size in (0, 1, 2, 5, 12, n):
+        sensors = rng.choice(n, size=size, replace=False)
+        union = np.unique(np.concatenate([fit._cells_of[s] for s in sensors] + [np.zeros(0, dtype=np.intp)]))
+        assert np.array_equal(fit.cells_covering(sensors), union)

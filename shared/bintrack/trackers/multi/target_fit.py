@@ -168,9 +168,10 @@ class TargetFit:
 
     def cells_covering(self, sensors: np.ndarray) -> np.ndarray:
         """The cells covered by any of ``sensors``, in index order."""
-        if len(sensors) == 0:
-            return np.zeros(0, dtype=np.intp)
-        return np.unique(np.concatenate([self._cells_of[s] for s in sensors]))
+        covered = np.zeros(len(self._sensors_of), dtype=bool)
+        for s in sensors:
+            covered[self._cells_of[s]] = True
+        return np.flatnonzero(covered)
 
     def reports(self, detecting: np.ndarray, expected: list[Expectation] | tuple = ()) -> list[PositionReport]:
         """The position reports of one scan: ``detecting`` is every sensor's status in
@@ -227,6 +228,8 @@ class _Scan:
         self.gains_alone = self.base.copy()
         """per cell: the gain (nats) of a target there with no other target, the same for every
         track's expected target in the scan"""
+        self._best: dict[tuple, int] = {}
+        """``_best_all`` for the present targets, by (cell of the target left out, extra cells)"""
 
     def _recount(self, remove: int | None, add: int | None) -> None:
         """Take a target off the cell ``remove`` and put one on ``add`` (either may be None),
@@ -240,6 +243,7 @@ class _Scan:
             self.count[sensors_of[add]] += 1
         rows = self.fit.cells_covering(touched[(self.count[touched] == 0) != before])
         self.base[rows] = self.fit.sums(rows, self._free_weight())
+        self._best.clear()
 
     def _append(self, target: _Target) -> None:
         self.targets.append(target)
@@ -288,12 +292,16 @@ class _Scan:
         return gain
 
     def _best_all(self, k: int, extra=()) -> int:
-        """``np.argmax(self._gains_all(k, extra))``, without copying the grid's gains."""
-        rows, gains = self._differing(k, extra)
-        kept = self.base[rows]
-        self.base[rows] = gains
-        best = int(np.argmax(self.base))
-        self.base[rows] = kept
+        """``np.argmax(self._gains_all(k, extra))``, without copying the grid's gains (once
+        per placement of the targets: a split's ascents often ask again)."""
+        key = (self.targets[k].cell, *extra)
+        best = self._best.get(key)
+        if best is None:
+            rows, gains = self._differing(k, extra)
+            kept = self.base[rows]
+            self.base[rows] = gains
+            best = self._best[key] = int(np.argmax(self.base))
+            self.base[rows] = kept
         return best
 
     def _support(self, target: _Target, gain: np.ndarray) -> float:
