@@ -208,3 +208,16 @@ def test_the_cells_covering_some_sensors_are_the_union_of_their_cells_in_index_o
         sensors = rng.choice(n, size=size, replace=False)
         union = np.unique(np.concatenate([fit._cells_of[s] for s in sensors] + [np.zeros(0, dtype=np.intp)]))
         assert np.array_equal(fit.cells_covering(sensors), union)
+
+
+def test_a_checkpointed_fit_leaves_out_its_split_starts_and_makes_them_again():
+    import pickle
+
+    fit = target_fit.TargetFit(GridFusion(grid_deployment()))
+    starts = fit.split_starts(10)
+    assert len(starts) == len(target_fit._SPLIT_ANGLES) and fit.split_starts(10) is starts  # kept per cell
+    restored = pickle.loads(pickle.dumps(fit))
+    assert restored._split_starts == {} and restored.split_starts(10) == starts
+    older = target_fit.TargetFit.__new__(target_fit.TargetFit)  # a checkpoint from before the table
+    older.__setstate__({k: v for k, v in fit.__dict__.items() if k != "_split_starts"})
+    assert older.split_starts(10) == starts

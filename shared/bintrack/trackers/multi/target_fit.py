@@ -155,6 +155,7 @@ class TargetFit:
         self._padded = np.full((max(int(lengths.max(initial=0)), 1), cover.shape[0]), cover.shape[1], dtype=np.intp)
         self._padded[np.arange(cover.nnz) - np.repeat(cover.indptr[:-1], lengths),
                      np.repeat(np.arange(cover.shape[0]), lengths)] = cover.indices
+        self._split_starts: dict[int, list[tuple[int, int]]] = {}
 
     def sums(self, rows: np.ndarray, per_sensor: np.ndarray) -> np.ndarray:
         """Per cell of ``rows``: the sum of ``per_sensor`` (n + 1 entries, the last 0) over the
@@ -165,6 +166,28 @@ class TargetFit:
         for layer in values:
             total += layer
         return total
+
+    def __getstate__(self) -> dict:
+        """For a checkpoint: the fit without its table of split starts, which is made again."""
+        return {k: v for k, v in self.__dict__.items() if k != "_split_starts"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._split_starts = {}
+
+    def split_starts(self, cell: int) -> list[tuple[int, int]]:
+        """The pairs of cells a split of a target at ``cell`` starts its ascents from: half a
+        sensing range either side of it, along each of the ``_SPLIT_ANGLES`` (kept per cell)."""
+        pairs = self._split_starts.get(cell)
+        if pairs is None:
+            centre = self.grid.cells[cell]
+            offset = 0.5 * float(self.grid.cell_range[cell])
+            pairs = []
+            for angle in _SPLIT_ANGLES:
+                u = offset * np.array((math.cos(angle), math.sin(angle)))
+                pairs.append((int(self.grid.cell_tree.query(centre + u)[1]), int(self.grid.cell_tree.query(centre - u)[1])))
+            self._split_starts[cell] = pairs
+        return pairs
 
     def cells_covering(self, sensors: np.ndarray) -> np.ndarray:
         """The cells covered by any of ``sensors``, in index order."""
@@ -366,15 +389,12 @@ class _Scan:
             if bar == math.inf:
                 continue
             best_pair, best_total = None, self._total(self._free_weight()) + bar
-            centre = self.grid.cells[target.cell]
-            offset = 0.5 * float(self.grid.cell_range[target.cell])
             # each round of the ascent depends only on the pair it starts from: the pair that
             # (pair, rounds left) ends at, and the pairs already scored (a repeat cannot win)
             ends: dict[tuple[int, int, int], tuple[int, int]] = {}
             scored: set[tuple[int, int]] = set()
-            for angle in _SPLIT_ANGLES:
-                u = offset * np.array((math.cos(angle), math.sin(angle)))
-                pair = [int(self.grid.cell_tree.query(centre + u)[1]), int(self.grid.cell_tree.query(centre - u)[1])]
+            for pair in self.fit.split_starts(target.cell):
+                pair = list(pair)
                 if expected:
                     pair[0] = target.cell
                 path = []
