@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import pickle
 from dataclasses import replace
 from pathlib import Path
 
@@ -211,8 +212,6 @@ def test_the_cells_covering_some_sensors_are_the_union_of_their_cells_in_index_o
 
 
 def test_a_checkpointed_fit_leaves_out_its_split_starts_and_makes_them_again():
-    import pickle
-
     fit = target_fit.TargetFit(GridFusion(grid_deployment()))
     starts = fit.split_starts(10)
     assert len(starts) == len(target_fit._SPLIT_ANGLES) and fit.split_starts(10) is starts  # kept per cell
