@@ -238,8 +238,14 @@ class Replay(Service):
         goes with ``attachment`` (:data:`RESENT` or None)."""
         item = action.item
         if isinstance(item, Record):
-            if put:
-                self._put(self.keys.prefix + item.key[len(self.source_prefix):], shift_payload(item.payload, action.shift))
+            raw = item.kind == "raw"
+            if put or raw:
+                key = self.keys.prefix + item.key[len(self.source_prefix):]
+                payload = shift_payload(item.payload, action.shift)
+                if put:
+                    self._put(key, payload, attachment if raw else None)
+                if raw:
+                    self._remember(key, payload)
         elif isinstance(item, TruthRow):
             if put:
                 self._put(self.keys.truth(), encode(TruthSample(t=action.t, target=item.target, x=item.x, y=item.y)))
@@ -248,7 +254,11 @@ class Replay(Service):
             payload = encode_raw_sample(action.t, item.sensor, item.value)
             if put:
                 self._put(key, payload, attachment)
-            self.recent.append((-math.inf if self.last_tick is None else self.last_tick, key, payload))
+            self._remember(key, payload)
+
+    def _remember(self, key: str, payload: bytes) -> None:
+        """Keep a raw sample put after the last tick, for ``recent`` and for sending it again."""
+        self.recent.append((-math.inf if self.last_tick is None else self.last_tick, key, payload))
 
     def _ticked(self, t: float, save: bool = True) -> None:
         """After the tick at ``t``: forget samples older than any consumer can still need (it has

@@ -46,9 +46,10 @@ from bintrack.messages import (
     Transition,
     decode,
     encode,
+    encode_raw_sample,
     is_resent,
 )
-from bintrack.live.recording import KIND_TYPES, open_recording
+from bintrack.live.recording import KIND_TYPES, RecordingWriter, open_recording
 
 from conftest import HUNG, free_port, write_foreign_dataset
 
@@ -451,11 +452,31 @@ def test_raw_samples_a_restarted_replay_sends_again_are_taken_once(tmp_path, zen
     assert raw == [("raw/n0", 1.0), ("raw/n0", 2.0), ("raw/n1", 2.0)]
 
 
-def test_a_restarted_replay_sends_the_samples_of_its_last_ticks_again_first(tmp_path, zenoh_router, services):
+def record_dataset(dataset: Path, out: Path) -> Path:
+    """A recording of ``dataset`` as a recorder would have made it: its raw samples, and a
+    clock tick every second of event time."""
+    data = open_dataset(dataset)
+    keys = Keys(data.deployment.name)
+    events = list(data.events())
+    with RecordingWriter(out, data.deployment, keys.net) as writer:
+        tick = math.floor(events[0].t) + 1.0
+        for event in events:
+            while tick <= event.t:
+                writer.write(keys.clock(), tick, encode(Clock(t=tick)))
+                tick += 1.0
+            writer.write(keys.raw(event.sensor), event.t, encode_raw_sample(event.t, event.sensor, event.value))
+        writer.write(keys.clock(), tick, encode(Clock(t=tick)))
+    return out
+
+
+@pytest.mark.parametrize("source", ["dataset", "recording"])
+def test_a_restarted_replay_sends_the_samples_of_its_last_ticks_again_first(tmp_path, zenoh_router, services, source):
     """A replay SIGKILLed mid-run, restarted from its checkpoint: before its first tick it puts
     marked RESENT the raw samples of its last ticks (a kill may have caught them in its send
-    path) and those after the tick it checkpointed (the killed one may have put them too)."""
+    path) and those after the tick it checkpointed (the killed one may have put them too),
+    whether it plays a dataset or a recording."""
     dataset = write_foreign_dataset(tmp_path / "ds", nodes=400)
+    played = dataset if source == "dataset" else record_dataset(dataset, tmp_path / "ds.mcap")
     state_dir = tmp_path / "state"
     state_dir.mkdir(mode=0o700)
     bus = Bus(zenoh_router, open_dataset(dataset).deployment, serve_deployment=False)
@@ -470,7 +491,7 @@ def test_a_restarted_replay_sends_the_samples_of_its_last_ticks_again_first(tmp_
 
     listener = bus.session.declare_subscriber(bus.keys.all(), on_sample)
     bus.play("sensor_agent")
-    args = (str(dataset), "--speed", "0", "--clock-period", "1", "--max-ahead", "6", "--wait-for", "sensor_agent",
+    args = (str(played), "--speed", "0", "--clock-period", "1", "--max-ahead", "6", "--wait-for", "sensor_agent",
             "--id", "r0", "--state-dir", str(state_dir))
     try:
         replay = services("replay", *args, endpoint=zenoh_router)
