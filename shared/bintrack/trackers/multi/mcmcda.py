@@ -461,7 +461,7 @@ class OnlineMCMCDA:
         while True:
             if (added or not must) and rng.random() < c.stop:
                 return added, logq + math.log(c.stop)
-            span = min(c.max_misses + 1, self._scan - gate.scan)
+            span = min(c.max_misses + 1, self._scan - gate.scan)  # _span, inline in the chain's hottest loop
             if span < 1:
                 return added, logq
             d = 1 + _below(rng, span)  # randint(1, span)
@@ -480,15 +480,14 @@ class OnlineMCMCDA:
         gates = self._gates
         logq = 0.0
         for i, rid in enumerate(path):
-            span = min(c.max_misses + 1, self._scan - gate.scan)
+            span = self._span(gate)
             if span < 1 or rid not in gate.all or rid not in free:
                 return -math.inf
             after = gates[rid]
             cands = len(free.intersection(gate.at[after.scan]))
             logq += -math.log(span) - math.log(cands) + (math.log1p(-c.stop) if (i or not must) else 0.0)
             gate = after
-        span = min(c.max_misses + 1, self._scan - gate.scan)
-        return logq + (math.log(c.stop) if span >= 1 else 0.0)
+        return logq + (math.log(c.stop) if self._span(gate) >= 1 else 0.0)
 
     # ------------------------------------------------------------------ chain
 
