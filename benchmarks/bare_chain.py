@@ -25,7 +25,7 @@ import time
 import msgpack
 import zenoh
 
-from bintrack.live.bus import client_config
+from bintrack.live.session_options import client_config
 
 PREFIX = "bench/bare"
 SENSORS = [f"n{i}" for i in range(1444)]

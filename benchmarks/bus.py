@@ -1,7 +1,7 @@
 """What the bus costs: raw Zenoh throughput in this Python beside the services' own figures.
 
 Everything runs on loopback (127.0.0.1) through one Zenoh router embedded in this process
-(``bintrack.live.bus.router_config`` on a free port); the services are real subprocesses
+(``bintrack.live.session_options.router_config`` on a free port); the services are real subprocesses
 (``python -m bintrack.services.<name> … -e ENDPOINT``), each on its own network name.
 
 1. **Raw Zenoh**: one client session publishes N small messages (a msgpack ``Transition``,
@@ -66,7 +66,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from bintrack.live.bus import client_config, router_config
+from bintrack.live.session_options import client_config, router_config
 from bintrack.formats import open_dataset, write_dataset
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, RawSample, TrackSet, Transition, decode, encode

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import zenoh
 
-from bintrack.live.bus import router_config
+from bintrack.live.session_options import router_config
 from bintrack.formats import open_dataset, write_dataset
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, decode

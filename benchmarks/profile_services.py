@@ -28,7 +28,7 @@ import zenoh
 
 from bintrack.formats import write_dataset
 from bintrack.keys import Keys
-from bintrack.live.bus import client_config, router_config
+from bintrack.live.session_options import client_config, router_config
 from bintrack.sim.scenarios import simulate
 
 REPO = Path(__file__).resolve().parents[1]

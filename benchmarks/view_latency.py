@@ -26,7 +26,7 @@ from pathlib import Path
 
 import zenoh
 
-from bintrack.live.bus import client_config, router_config
+from bintrack.live.session_options import client_config, router_config
 from bintrack.messages import Deployment, Track, TrackSet, encode
 
 REPO = Path(__file__).resolve().parents[1]

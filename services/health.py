@@ -13,7 +13,7 @@ import asyncio
 import logging
 import sys
 
-from bintrack.live.bus import add_bus_arguments
+from bintrack.live.session_options import add_bus_arguments
 from bintrack.live.network_client import BintrackClient
 from bintrack.keys import Keys
 

@@ -21,23 +21,37 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
-from collections import deque
+from dataclasses import dataclass
 
 import zenoh
 
 from bintrack.argtypes import positive_float
-from bintrack.keys import parse_key
-from bintrack.live.bus import Service, add_bus_arguments, log, service_main
-from bintrack.live.tracks_queryable import answer_tracks_query
+from bintrack.keys import ParsedKey, parse_key
+from bintrack.live.service import Service, log, service_main
+from bintrack.live.session_options import add_bus_arguments
+from bintrack.live.track_history import TrackHistory
 from bintrack.messages import Clock, MessageError, TrackSet, decode
 from bintrack.regions import RegionMap
 from bintrack.trackers.multi.region_merge import MergeConfig, RegionMerge
 
-TRACKS_HISTORY = 1024  # recent merged track sets kept for the ``tracks?after=T`` queryable
+
+@dataclass
+class MergeCheckpoint:
+    """The merge's checkpoint: its state and the track sets it served."""
+
+    merge: RegionMerge
+    latest: TrackSet | None
+    history: list[TrackSet]
 
 
 class Merge(Service):
     name = "merge"
+
+    def __init__(self, args):
+        super().__init__(args)
+        self.regions: RegionMap | None = None
+        self.merge: RegionMerge | None = None
+        self.tracks = TrackHistory(self.keys.tracks())
 
     async def setup(self) -> None:
         deployment = await self.wait_for_deployment()
@@ -45,10 +59,8 @@ class Merge(Service):
             return
         self.regions = RegionMap(deployment)
         self.merge = RegionMerge(self.regions, MergeConfig(gate=self.args.gate, handover=self.args.handover))
-        self.latest: TrackSet | None = None
-        self.history: deque[TrackSet] = deque(maxlen=TRACKS_HISTORY)
         resumed = self.resume()
-        self.serve(self.keys.tracks(), self.on_tracks_query)
+        self.serve(self.tracks.key, self.tracks.answer)
         self.subscribe(self.keys.region_tracks(), self.on_region_tracks)
         if resumed:
             # the scans published while it was gone, before any progress report can release them
@@ -59,25 +71,21 @@ class Merge(Service):
                      self.name, self.merge.emitted_up_to, len(fetched))
         self.subscribe(self.keys.region_progress(), self.on_region_progress)
         self.subscribe(self.keys.clock(), self.on_clock)
-        self._declared.append(self.session.liveliness().declare_subscriber(
-            self.keys.region_alive(), self.inbox.callback(self.on_region_alive), history=True))
+        self.follow_presence(self.on_presence)
         self.follow_end_of_stream(["basestation"], lambda t: self.emit(self.merge.finish()))
         log.info("%s: merging regions %s", self.name, ", ".join(self.regions.names))
 
     def resume(self) -> bool:
         """Take back the checkpoint of an earlier instance, if there is one; whether there was."""
-        saved = self.load_checkpoint()
+        saved = self.checkpoints.load(MergeCheckpoint)
         if saved is None:
             return False
-        try:
-            merge, latest, history = saved
-            if not isinstance(merge, RegionMerge) or sorted(merge.regions.names) != sorted(self.regions.names):
-                raise ValueError("another deployment's regions")
-        except (TypeError, ValueError) as exc:
-            log.warning("%s: checkpoint not of this version or deployment (%s); starting afresh", self.name, exc)
+        if sorted(saved.merge.regions.names) != sorted(self.regions.names):
+            log.warning("%s: checkpoint not of this deployment (another deployment's regions); starting afresh",
+                        self.name)
             return False
-        self.merge, self.latest = merge, latest
-        self.history.extend(history)
+        self.merge = saved.merge
+        self.tracks.restore(saved.latest, saved.history)
         return True
 
     def fetch_region_tracks(self, after: float) -> list[tuple[str, TrackSet]]:
@@ -95,7 +103,10 @@ class Merge(Service):
 
     def region_of(self, sample: zenoh.Sample) -> str | None:
         key = str(sample.key_expr)
-        region = parse_key(key).region
+        return self.known_region(key, parse_key(key).region)
+
+    def known_region(self, key: str, region: str | None) -> str | None:
+        """``region`` if the deployment has it, else None (reported as bad input on ``key``)."""
         if region not in self.regions.shapes:
             self.bad.report(key, f"unknown region {region!r}")
             return None
@@ -113,16 +124,20 @@ class Merge(Service):
         if tick is not None:
             self.emit(self.merge.progress(region, tick.t))
 
-    def on_region_alive(self, sample: zenoh.Sample) -> None:
-        region = self.region_of(sample)
+    def on_presence(self, parsed: ParsedKey, present: bool) -> None:
+        """A region's base station's ``region/<r>/alive`` token came or went."""
+        if parsed.kind != "region_alive":
+            return
+        region = self.known_region(self.keys.region_alive(parsed.region), parsed.region)
         if region is None:
             return
-        if sample.kind == zenoh.SampleKind.PUT:
+        if present:
             if region in self.merge.stale:
                 log.warning("%s: region %s's base station is back", self.name, region)
             self.merge.back(region)
             return
-        shown = sum(1 for tr in (self.latest.tracks if self.latest else ()) if tr.region == region)
+        latest = self.tracks.latest
+        shown = sum(1 for tr in (latest.tracks if latest else ()) if tr.region == region)
         log.warning("%s: region %s's base station is gone; its %d tracks are marked stale", self.name, region, shown)
         self.emit(self.merge.lost(region))
 
@@ -133,14 +148,11 @@ class Merge(Service):
 
     def emit(self, merged: list[TrackSet]) -> None:
         for tracks in merged:
-            self.latest = tracks
-            self.history.append(tracks)
-            self.publish(self.keys.tracks(), tracks)
+            self.tracks.add(tracks)
+            self.publish(self.tracks.key, tracks)
         if merged:
-            self.save_checkpoint_throttled(merged[-1].t, lambda: (self.merge, self.latest, list(self.history)))
-
-    def on_tracks_query(self, query: zenoh.Query) -> None:
-        answer_tracks_query(query, self.keys.tracks(), self.latest, self.history)
+            self.checkpoints.save_throttled(merged[-1].t, lambda: MergeCheckpoint(self.merge, self.tracks.latest,
+                                                                                  list(self.tracks.recent)))
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -13,7 +13,8 @@ import argparse
 import sys
 
 from bintrack.argtypes import non_negative_float, positive_float
-from bintrack.live.bus import add_bus_arguments, service_main
+from bintrack.live.service import service_main
+from bintrack.live.session_options import add_bus_arguments
 from bintrack.messages import LocalEstimate
 from bintrack.errors import CommandError
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_options

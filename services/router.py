@@ -18,7 +18,9 @@ import threading
 
 import zenoh
 
-from bintrack.live.bus import PARENT_ENV, configure_logging, log, zenoh_config
+from bintrack.live.parent_watch import PARENT_ENV
+from bintrack.live.service import configure_logging, log
+from bintrack.live.session_options import zenoh_config
 
 
 def mesh_config(args: argparse.Namespace) -> zenoh.Config:

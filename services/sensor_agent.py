@@ -13,87 +13,32 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
-from collections import Counter, deque
-from typing import NamedTuple
+from collections import Counter
 
 import zenoh
 
-from bintrack.live.bus import Service, add_bus_arguments, log, service_main
-from bintrack.formats import Event, check_value
+from bintrack.formats import check_value
 from bintrack.keys import parse_key
-from bintrack.messages import (SCHEMA_VERSION, Clock, EndOfStream, MessageError, RawSample, SensorState, Transition,
-                                decode_view, encode, encode_transition, is_resent)
+from bintrack.live.sensor_hosting import HISTORY_SPAN, HostedSensors, SensorAgentCheckpoint
+from bintrack.live.service import Service, log, service_main
+from bintrack.live.session_options import add_bus_arguments
+from bintrack.messages import Clock, EndOfStream, MessageError, RawSample, decode_view, encode, is_resent
 from bintrack.regions import RegionMap
 from bintrack.transition_detector import TransitionDetector
 
-HISTORY = 256  # transitions kept per sensor for gap repair …
-HISTORY_SPAN = 60.0  # … and no older than this, s of event time behind the clock (memory stays flat)
-RESUME_SPAN = 5.0  # s of event time of sent transitions a checkpoint keeps (those a kill may catch in flight)
 RETRY = 0.5  # s between asks for replay's recent samples
-TRANSITION_FIELDS = tuple(Transition.model_fields)  # a checkpoint's layout of a sent transition: version, then Sent's
-
-
-class Sent(NamedTuple):
-    """A transition this agent sent: the fields of ``Transition`` but its version. The model is
-    built only for a ``state`` reply; the hot path packs these fields directly."""
-
-    t: float
-    sensor: str
-    value: int
-    previous: int
-    seq: int
-    source: str
-    source_seq: int
-
-    def message(self) -> Transition:
-        return Transition(**self._asdict())
-
-
-class HostedSensor:
-    """One sensor: its samples in arrival order → transitions, and its recent history."""
-
-    def __init__(self, sensor_id: str, detector: TransitionDetector, agent: "SensorAgent"):
-        self.id = sensor_id
-        self.detector = detector
-        self.agent = agent
-        self.history: deque[Sent] = deque(maxlen=HISTORY)
-        self.last_t = float("-inf")
-        self.key = agent.keys.transition(sensor_id)
-
-    def handle(self, sample: RawSample) -> None:
-        if sample.t < self.last_t:
-            self.agent.bad.report(self.agent.keys.raw(self.id), f"out of order: t={sample.t} after t={self.last_t}")
-            return
-        self.last_t = sample.t
-        change = self.detector.change(Event(sample.t, self.id, sample.value))
-        if change is None:
-            return
-        self.agent.sent += 1
-        # valid by construction: the sample was validated, seq and source_seq count from 1
-        transition = Sent(sample.t, self.id, sample.value, change[0], change[1], self.agent.instance, self.agent.sent)
-        self.remember(transition)
-        self.agent.recent.append(transition)
-        if self.agent.args.lose and self.agent.sent % self.agent.args.lose == 0:
-            return  # --lose: a lossy link for tests; the receivers must repair the gap
-        self.agent.put(self.key, encode_transition(*transition))
-
-    def remember(self, transition: Sent) -> None:
-        """Keep ``transition`` for gap repair (the agent's trail says when to forget it)."""
-        self.history.append(transition)
-        self.agent.trail.append(transition)
-
-    def state(self, since: int | None, after_source_seq: int | None) -> SensorState:
-        """Status and seq; ``missed``: transitions with seq > ``since`` or source_seq > ``after_source_seq``."""
-        value, seq = self.detector.status(self.id)
-        missed = [tr.message() for tr in self.history
-                  if (since is not None and tr.seq > since)
-                  or (after_source_seq is not None and tr.source_seq > after_source_seq)]
-        return SensorState(t=self.last_t if self.last_t > float("-inf") else 0.0, sensor=self.id,
-                           value=value, seq=seq, missed=missed)
 
 
 class SensorAgent(Service):
     name = "sensor_agent"
+
+    def __init__(self, args):
+        super().__init__(args)
+        self.sensors = {}  # the deployment's sensors by id
+        self.hosts: HostedSensors | None = None
+        self.raw_keys: dict[str, str] = {}
+        self.acked = float("-inf")  # the last clock tick acknowledged
+        self.resent = Counter()  # raw samples a restarted replay sent again: new (True) or already here (False)
 
     async def setup(self) -> None:
         deployment = await self.wait_for_deployment()
@@ -118,15 +63,10 @@ class SensorAgent(Service):
             self.exit_status = 2
             self.stop()
             return
-        detector = TransitionDetector(deployment, hosted)
-        self.sent = 0
-        self.recent: deque[Sent] = deque()  # the transitions sent in the last RESUME_SPAN s
-        self.trail: deque[Sent] = deque()  # every sensor's history, oldest first (to trim them)
-        self.acked = float("-inf")  # the last clock tick acknowledged
-        self.resent = Counter()  # raw samples a restarted replay sent again: new (True) or already here (False)
-        self.hosted = {sid: HostedSensor(sid, detector, self) for sid in hosted}
-        checkpoint = self.load_checkpoint()
-        if checkpoint is not None and set(checkpoint["sensors"]) == set(self.hosted):
+        self.hosts = HostedSensors(self.keys, self.instance, TransitionDetector(deployment, hosted), hosted,
+                                   self.put, self.bad.report, self.args.lose)
+        checkpoint = self.checkpoints.load(SensorAgentCheckpoint)
+        if checkpoint is not None and set(checkpoint.sensors) == set(self.hosts.sensors):
             await self._resume(checkpoint)
         self.raw_keys = {sid: self.keys.raw(sid) for sid in self.sensors}
         self.subscribe(self.keys.raw(), self.on_raw)
@@ -134,26 +74,17 @@ class SensorAgent(Service):
         self.subscribe(self.keys.eos(), self.on_eos)
         self.serve(self.keys.state(), self.on_state)
 
-    async def _resume(self, checkpoint: dict) -> None:
+    async def _resume(self, checkpoint: SensorAgentCheckpoint) -> None:
         """Take the state saved at the last clock tick acknowledged (statuses, counters, and the
         transitions sent in the last RESUME_SPAN s, which a receiver may still fetch: a kill
         loses what was still in flight), then the raw samples replay published after that tick
         (its ``recent`` queryable): what this sensor agent had when it died, and what it missed
         while it was down (replay holds the clock meanwhile)."""
-        self.sent = checkpoint["sent"]
-        for fields in checkpoint.get("recent", ()):
-            saved = dict(zip(TRANSITION_FIELDS, fields))
-            transition = Sent(**{name: saved[name] for name in Sent._fields})
-            self.recent.append(transition)
-            self.hosted[transition.sensor].remember(transition)
-        detector = checkpoint["detector"]
-        for sid, last_t in checkpoint["sensors"].items():
-            hosted = self.hosted[sid]
-            hosted.detector, hosted.last_t = detector, last_t
-        self.acked = checkpoint["tick"]
+        self.hosts.restore(checkpoint)
+        self.acked = checkpoint.tick
         taken = await self._take_recent(newer=False)
         log.info("%s: resumed at the tick t=%g s with %d transitions sent; %d raw samples since taken from replay",
-                 self.name, checkpoint["tick"], self.sent, taken)
+                 self.name, checkpoint.tick, self.hosts.sent, taken)
 
     async def _take_recent(self, newer: bool) -> int:
         """Handle the raw samples replay published after the last tick acknowledged (its
@@ -168,28 +99,18 @@ class SensorAgent(Service):
         taken = 0
         for payload in replies:
             raw = _decode(RawSample, payload)
-            if raw is None or raw.sensor not in self.hosted:
+            if raw is None or raw.sensor not in self.hosts.sensors:
                 continue
-            hosted = self.hosted[raw.sensor]
+            hosted = self.hosts.sensors[raw.sensor]
             if raw.t > hosted.last_t or (not newer and raw.t == hosted.last_t):
                 hosted.handle(raw)
                 taken += 1
         return taken
 
     async def on_router_back(self) -> None:
-        if getattr(self, "hosted", None):
+        if self.hosts is not None and self.hosts.sensors:
             taken = await self._take_recent(newer=True)
             log.info("%s: %d raw samples published during the outage taken from replay", self.name, taken)
-
-    def _checkpoint(self, tick: float) -> None:
-        while self.recent and self.recent[0].t < tick - RESUME_SPAN:
-            self.recent.popleft()
-        if self.checkpoint_path() is None:
-            return
-        detector = next(iter(self.hosted.values())).detector if self.hosted else None
-        recent = [(SCHEMA_VERSION, *tr) for tr in self.recent]
-        self.save_checkpoint({"tick": tick, "sent": self.sent, "detector": detector, "recent": recent,
-                              "sensors": {sid: h.last_t for sid, h in self.hosted.items()}})
 
     def on_raw(self, sample: zenoh.Sample) -> None:
         raw = self.read(RawSample, sample)
@@ -210,7 +131,7 @@ class SensorAgent(Service):
         if problem:
             self.bad.report(key, problem)
             return
-        hosted = self.hosted.get(raw.sensor)
+        hosted = self.hosts.sensors.get(raw.sensor)
         if hosted is None:  # another agent's sensor
             return
         if sample.attachment is not None and is_resent(sample.attachment.to_bytes()):
@@ -226,21 +147,16 @@ class SensorAgent(Service):
         message = self.read(Clock, sample)
         if message is None:
             return
-        self._forget_before(message.t - HISTORY_SPAN)
+        self.hosts.forget_before(message.t - HISTORY_SPAN)
         if self.resent:
             log.info("%s: of the raw samples a restarted replay sent again, %d were new and %d already handled",
                      self.name, self.resent[True], self.resent[False])
             self.resent.clear()
         self.acked = message.t
-        self._checkpoint(message.t)
-        self.report_progress(message.t, sent=self.sent)
-
-    def _forget_before(self, t: float) -> None:
-        """Drop the histories older than event time ``t`` (s): each transition is looked at once."""
-        while self.trail and self.trail[0].t < t:
-            history = self.hosted[self.trail.popleft().sensor].history
-            while history and history[0].t < t:
-                history.popleft()
+        self.hosts.trim(message.t)
+        if self.checkpoints.path is not None:
+            self.checkpoints.save(self.hosts.checkpoint(message.t))
+        self.report_progress(message.t, sent=self.hosts.sent)
 
     def on_eos(self, sample: zenoh.Sample) -> None:
         message = self.read(EndOfStream, sample)
@@ -251,15 +167,15 @@ class SensorAgent(Service):
         """``…/state``; ``?since=N``: also the transitions after seq N; ``?source=ID;after=N``:
         also those this instance (ID) sent after its source_seq N (nothing if ID is another)."""
         try:
-            since = _optional_int(query.parameters.get("since"))
-            after = _optional_int(query.parameters.get("after"))
+            since, after = (None if text is None else int(text) for text in (query.parameters.get("since"),
+                                                                              query.parameters.get("after")))
         except ValueError:
             query.reply_err(b"since and after must be integers")
             return
         source = query.parameters.get("source")
         if source is not None and source != self.instance:
             return
-        for sensor_id, hosted in self.hosted.items():
+        for sensor_id, hosted in self.hosts.sensors.items():
             key = self.keys.state(sensor_id)
             if zenoh.KeyExpr(key).intersects(query.key_expr):
                 state = hosted.state(since, after)
@@ -272,10 +188,6 @@ def _decode(cls, payload: bytes):
         return decode_view(cls, payload)
     except MessageError:
         return None
-
-
-def _optional_int(text: str | None) -> int | None:
-    return None if text is None else int(text)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -25,7 +25,8 @@ from collections import Counter
 import zenoh
 
 from bintrack.argtypes import positive_float
-from bintrack.live.bus import Service, add_bus_arguments, service_main
+from bintrack.live.service import Service, service_main
+from bintrack.live.session_options import add_bus_arguments
 from bintrack.errors import CommandError
 from bintrack.keys import parse_key
 from bintrack.messages import MessageError, TrackSet, decode
@@ -76,8 +77,7 @@ class View(Service):
         print(f"view: map on {self.url}", file=sys.stderr, flush=True)
         self.subscribe(self.keys.all(), self.on_sample)
         self.services: set[tuple[str, str]] = set()
-        self._declared.append(self.session.liveliness().declare_subscriber(
-            self.keys.alive(), self.inbox.callback(self.on_alive), history=True))
+        self.follow_presence(self.on_presence)
 
     def on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
@@ -97,13 +97,9 @@ class View(Service):
         if kind == "clock":
             self.report_progress(message.t)
 
-    def on_alive(self, sample: zenoh.Sample) -> None:
-        try:
-            parsed = parse_key(str(sample.key_expr))
-        except ValueError:
-            return
-        entry = (parsed.service, parsed.instance)
-        (self.services.add if sample.kind == zenoh.SampleKind.PUT else self.services.discard)(entry)
+    def on_presence(self, parsed, present: bool) -> None:
+        if parsed.kind == "alive":
+            (self.services.add if present else self.services.discard)((parsed.service, parsed.instance))
 
     async def complete_picture(self) -> None:
         """Before a page's first snapshot: the latest tracks from the queryable if none came yet."""

@@ -79,7 +79,7 @@ def zenoh_router():
     """A real Zenoh router in this process on a free loopback port; yields its endpoint."""
     import zenoh
 
-    from bintrack.live.bus import router_config
+    from bintrack.live.session_options import router_config
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = zenoh.open(router_config([endpoint]))

@@ -28,7 +28,7 @@ import msgpack
 import pytest
 import zenoh
 
-from bintrack.live.bus import client_config, router_config
+from bintrack.live.session_options import client_config, router_config
 from bintrack.live.control_guard import control_attachment
 from bintrack.formats import open_dataset
 from bintrack.keys import Keys, parse_key

@@ -9,7 +9,7 @@ import msgpack
 import pytest
 import zenoh
 
-from bintrack.live.bus import client_config
+from bintrack.live.session_options import client_config
 from bintrack.client import BintrackClient
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, Track, TrackSet, Transition, encode

@@ -14,7 +14,7 @@ import yaml
 import zenoh
 
 from bintrack.keys import Keys
-from bintrack.live.bus import client_config
+from bintrack.live.session_options import client_config
 from bintrack.messages import TrackSet, decode
 from conftest import REPO, free_port
 from test_compose import MODULE_PREFIX, container_argv, dependency_order, local_args, option_values, uses_our_build

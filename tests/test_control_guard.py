@@ -14,7 +14,7 @@ import zenoh
 
 from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
 from bintrack.keys import Keys
-from bintrack.live.bus import client_config, open_session
+from bintrack.live.session_options import client_config, open_session
 from bintrack.live.control_guard import control_attachment
 from bintrack.messages import Clock, Deployment, EndOfStream, decode, encode
 

@@ -21,7 +21,7 @@ import pytest
 import zenoh
 
 from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
-from bintrack.live.bus import client_config
+from bintrack.live.session_options import client_config
 from bintrack.live.control_guard import control_attachment
 from bintrack.keys import Keys
 from bintrack.messages import Clock, RawSample, decode, encode
@@ -232,7 +232,7 @@ def test_services_end_when_up_is_killed(grid_slice):
 
 ROUTER = """
 import signal, sys, zenoh
-from bintrack.live.bus import router_config
+from bintrack.live.session_options import router_config
 router = zenoh.open(router_config([sys.argv[1]]))
 print("router up", flush=True)
 signal.sigwait({signal.SIGTERM, signal.SIGINT})

@@ -8,7 +8,7 @@ import sys
 import pytest
 import zenoh
 
-from bintrack.live.bus import client_config
+from bintrack.live.session_options import client_config
 from bintrack.keys import Keys
 from conftest import HUNG, REPO, free_port
 

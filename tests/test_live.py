@@ -13,7 +13,7 @@ import yaml
 import zenoh
 
 from bintrack.cli import main as cli
-from bintrack.live.bus import client_config, router_config
+from bintrack.live.session_options import client_config, router_config
 from bintrack.live.control_guard import control_attachment
 from bintrack.formats import (
     TruthRow,

@@ -20,7 +20,8 @@ from bintrack.messages import Transition, decode
 from bintrack.pipeline import output_rows, run_tracker
 from bintrack.live.recording import open_recording
 from bintrack.trackers import make_tracker
-from bintrack.live.sequence_checks import SequenceCheck, SourceCheck, UpstreamWatermark
+from bintrack.live.sequence_checks import SequenceCheck, SourceCheck
+from bintrack.live.watermark import UpstreamWatermark
 from bintrack.transition_detector import TransitionDetector
 
 from conftest import HUNG, REPO, write_foreign_dataset

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from bintrack.live.bus import client_config
+from bintrack.live.session_options import client_config
 from conftest import REPO, free_port
 
 

@@ -12,7 +12,7 @@ import pytest
 import zenoh
 from mcap.reader import make_reader
 
-from bintrack.live.bus import client_config
+from bintrack.live.session_options import client_config
 from bintrack.live.control_guard import control_attachment
 from bintrack.cli import main as cli
 from bintrack.formats import FormatError, ObjectRow, TrackRow, read_objects, read_tracks

@@ -24,7 +24,7 @@ import zenoh
 from bintrack.evaluation.track_agreement import agreement
 from bintrack.formats import TrackRow, read_tracks
 from bintrack.keys import Keys
-from bintrack.live.bus import client_config
+from bintrack.live.session_options import client_config
 from bintrack.messages import Clock, TrackSet, decode
 from conftest import REPO, free_port
 from test_mesh import start_chain

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from bintrack.live.bus import client_config, router_config
+from bintrack.live.session_options import client_config, router_config
 from bintrack.formats import Event, open_dataset, write_dataset
 from bintrack.messages import Clock, Deployment, DiskSensor, EndOfStream, RawSample, Region, decode, encode
 from bintrack.live.recording import open_recording

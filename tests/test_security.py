@@ -20,7 +20,7 @@ from cryptography import x509
 from bintrack.cli import certs_command
 from bintrack.cli import main as cli
 from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
-from bintrack.live.bus import client_config as plain_client_config
+from bintrack.live.session_options import client_config as plain_client_config
 from bintrack.live.secure_profile import (PROFILE, awaiting_token_holders, client_config, restrict_sensor_agents,
                                           role_of, router_config, secure_commands)
 from bintrack.live.stack import region_stack_commands

@@ -301,7 +301,7 @@ def test_view_of_a_file_that_is_not_a_recording_fails_with_one_line(tmp_path):
 def test_the_page_says_when_the_deployment_the_stack_the_bus_or_the_view_server_is_missing(browser):
     import zenoh
 
-    from bintrack.live.bus import client_config, router_config
+    from bintrack.live.session_options import client_config, router_config
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = zenoh.open(router_config([endpoint]))
@@ -342,7 +342,7 @@ def test_the_page_says_when_the_deployment_the_stack_the_bus_or_the_view_server_
 def test_a_page_opened_mid_run_gets_the_deployment_and_the_latest_tracks_from_the_queryables(browser):
     import zenoh
 
-    from bintrack.live.bus import client_config, router_config
+    from bintrack.live.session_options import client_config, router_config
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = zenoh.open(router_config([endpoint]))

@@ -13,7 +13,7 @@ import time
 import pytest
 import zenoh
 
-from bintrack.live.bus import client_config
+from bintrack.live.session_options import client_config
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, Track, TrackSet, Transition, encode
 from conftest import HUNG, REPO, free_port

@@ -39,3 +39,15 @@ def int_at_least(minimum: int) -> Callable[[str], int]:
         return value
 
     return parse
+
+
+def size_bytes(text: str) -> int:
+    """``123``, ``64K``, ``100M`` or ``2G`` (powers of 1024) as a positive number of bytes (argparse type)."""
+    units = {"K": 1024, "M": 1024**2, "G": 1024**3}
+    try:
+        value = int(float(text[:-1]) * units[text[-1].upper()]) if text[-1:].upper() in units else int(text)
+    except ValueError:
+        value = 0
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"not a positive size in bytes: {text!r} (e.g. 100M)")
+    return value

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from bintrack.live.bus import configure_logging
+from bintrack.live.service import configure_logging
 from bintrack.services import recorder
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from bintrack.live.bus import configure_logging
+from bintrack.live.service import configure_logging
 from bintrack.services.replay import Replay, add_arguments
 
 __all__ = ["add_arguments", "run"]

@@ -11,7 +11,7 @@ Supervision: a service that dies is restarted with the same instance id after a 
 resumes from its checkpoint in a state folder (``--state-dir`` of the services) and from
 what the others hold. A service that exits with status 2 (bad options or data) or fails
 :data:`MAX_QUICK_FAILURES` times in a row stops the stack. The services run in one process
-group and end themselves when ``up`` dies (parent-death check in :mod:`bintrack.live.bus`), so no
+group and end themselves when ``up`` dies (parent-death check in :mod:`bintrack.live.parent_watch`), so no
 orphan is left. ``up`` refuses to run next to another stack of the same network on its router.
 """
 
@@ -32,7 +32,8 @@ from pathlib import Path
 import zenoh
 
 from bintrack.argtypes import positive_float
-from bintrack.live.bus import DEFAULT_ENDPOINT, PARENT_ENV, STATE_DIR_OPTION, router_config
+from bintrack.live.parent_watch import PARENT_ENV
+from bintrack.live.session_options import DEFAULT_ENDPOINT, STATE_DIR_OPTION, router_config
 from bintrack.errors import CommandError
 from bintrack.formats import DEPLOYMENT_FILE, open_dataset, write_deployment
 from bintrack.keys import Keys, parse_key

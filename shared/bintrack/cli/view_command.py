@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import argparse
 
-from bintrack.live.bus import add_bus_arguments, configure_logging
+from bintrack.live.service import configure_logging
+from bintrack.live.session_options import add_bus_arguments
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -14,7 +14,7 @@ import asyncio
 import signal
 import sys
 
-from bintrack.live.bus import add_bus_arguments
+from bintrack.live.session_options import add_bus_arguments
 from bintrack.live.network_client import BintrackClient
 from bintrack.messages import LocalEstimate, TrackSet, Transition
 

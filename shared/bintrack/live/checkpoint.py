@@ -10,9 +10,19 @@ starts afresh. ``bintrack up`` keeps them in a private temporary folder (mode 07
 
 from __future__ import annotations
 
+import logging
+import math
 import os
 import pickle
 import stat
+import time
+from collections.abc import Callable
+from typing import Any
+
+CHECKPOINT_INTERVAL = 1.0  # s of wall clock between two throttled checkpoints …
+CHECKPOINT_SPAN = 8.0  # … or s of event time, whichever comes first (well inside the sensors' HISTORY_SPAN)
+
+log = logging.getLogger("bintrack")
 
 
 class CheckpointRefused(Exception):
@@ -54,3 +64,64 @@ def save_checkpoint(path: str, state) -> None:
     with os.fdopen(fd, "wb") as handle:
         pickle.dump(state, handle, protocol=pickle.HIGHEST_PROTOCOL)
     os.replace(aside, path)
+
+
+class Checkpointer:
+    """One service instance's checkpoint: ``<state dir>/<service>-<id>.pickle`` (none without a
+    state dir), tagged with the run it belongs to.
+
+    A run is replay's: it names it in its answers on ``deployment``, and a service that asked
+    for the deployment first (every one but replay) keeps only a checkpoint of the same run, so
+    a stack started afresh on an old state folder (a compose volume) does not resume what
+    another run left. Replay resumes its own run. Each service saves a dataclass of its own;
+    a checkpoint holding anything else is of another version and refused.
+    """
+
+    def __init__(self, folder: str | None, service: str, instance: str):
+        self.service = service
+        self.instance = instance
+        self.path = None if not folder else os.path.join(folder, f"{service}-{instance}.pickle")
+        self.run_id: str | None = None  # the run this instance belongs to (replay's)
+        self._saved_at = -math.inf  # monotonic time of the last throttled checkpoint
+        self._saved_t = -math.inf  # event time (s) it was taken at
+
+    def load(self, kind: type):
+        """The ``kind`` saved by :meth:`save` before a restart, or None: none saved, or refused
+        (logged; the service starts afresh) because it is unsafe or damaged, of another version
+        or of an earlier run."""
+        if self.path is None:
+            return None
+        try:
+            saved = load_checkpoint(self.path)
+        except CheckpointRefused as exc:
+            log.warning("%s: checkpoint %s %s; starting afresh", self.service, self.path, exc)
+            return None
+        if saved is None:
+            return None
+        if not isinstance(saved, dict) or set(saved) != {"run", "state"} or not isinstance(saved["state"], kind):
+            log.warning("%s: checkpoint %s is not of this version; starting afresh", self.service, self.path)
+            return None
+        if self.run_id is not None and saved["run"] != self.run_id:
+            log.warning("%s: checkpoint %s is of another run (%s; replay's is %s); starting afresh",
+                        self.service, self.path, saved["run"], self.run_id)
+            return None
+        self.run_id = saved["run"]
+        log.info("%s %s: restarted; resuming from its checkpoint", self.service, self.instance)
+        return saved["state"]
+
+    def save(self, state: Any) -> None:
+        """Save ``state`` with the run it belongs to, atomically and private to this user, if
+        there is a state dir."""
+        if self.path is not None:
+            save_checkpoint(self.path, {"run": self.run_id, "state": state})
+
+    def save_throttled(self, t: float, state: Callable[[], Any]) -> None:
+        """Save ``state()`` at event time ``t`` (s) if CHECKPOINT_INTERVAL s of wall clock or
+        CHECKPOINT_SPAN s of event time passed since the last one: for a state that takes long to
+        save (a tracker's), whose outputs a restarted instance sends again and the receivers
+        drop as duplicates."""
+        now = time.monotonic()
+        if self.path is not None and (now - self._saved_at >= CHECKPOINT_INTERVAL
+                                      or t - self._saved_t >= CHECKPOINT_SPAN):
+            self.save(state())
+            self._saved_at, self._saved_t = now, t

@@ -25,7 +25,7 @@ from functools import lru_cache
 import msgpack
 import zenoh
 
-from bintrack.keys import Keys, parse_key
+from bintrack.keys import Keys, ParsedKey, parse_key
 from bintrack.messages import Clock, MessageError, decode_view
 
 MAX_STEPS = 4.0  # a tick may be this many announced steps past the last one admitted
@@ -80,15 +80,11 @@ class ControlGuard:
     steps: dict[str, float] = field(default_factory=dict)
     rejected: int = 0
 
-    def on_liveliness(self, sample: zenoh.Sample) -> None:
-        """Follow the ``alive/**`` tokens (a liveliness subscriber's callback)."""
-        try:
-            parsed = parse_key(str(sample.key_expr))
-        except ValueError:
-            return
+    def on_presence(self, parsed: ParsedKey, present: bool) -> None:
+        """Follow the ``alive/**`` tokens (a :class:`~bintrack.live.presence.Presence` listener)."""
         if parsed.kind == "alive":
             who = f"{parsed.service}/{parsed.instance}"
-            if sample.kind == zenoh.SampleKind.PUT:
+            if present:
                 self.alive.add(who)
             elif who in self.alive:
                 self.alive.discard(who)
@@ -148,17 +144,3 @@ class ControlGuard:
         self.rejected += 1
         self.report(sender, reason)
         return False
-
-
-def guard_control(service) -> ControlGuard:
-    """A guard for ``service`` (a :class:`bintrack.live.bus.Service` with an open session and
-    inbox), following the network's liveliness tokens; rejections go to its bad-input count."""
-    session = service.session
-
-    def lookup(key: str) -> bool:
-        return any(reply.ok is not None for reply in session.liveliness().get(key, timeout=1.0))
-
-    guard = ControlGuard(service.keys, service.bad.report, lookup)
-    service._declared.append(session.liveliness().declare_subscriber(
-        service.keys.alive(), service.inbox.callback(guard.on_liveliness), history=True))
-    return guard

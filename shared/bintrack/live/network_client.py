@@ -18,7 +18,7 @@ validated messages (:mod:`bintrack.messages`)::
 Each of :meth:`BintrackClient.tracks`, :meth:`~BintrackClient.estimates` and
 :meth:`~BintrackClient.transitions` declares a Zenoh subscriber at once and returns a
 :class:`Subscription`, an async iterator. Samples go from Zenoh's threads to the asyncio loop
-through a bounded :class:`bintrack.live.bus.Inbox` (the callback neither blocks nor calls Zenoh);
+through a bounded :class:`bintrack.live.inbox.Inbox` (the callback neither blocks nor calls Zenoh);
 each subscription then keeps at most ``capacity`` decoded messages for the reader and drops
 the oldest past that, counting them in ``dropped``. A payload that does not decode or
 validate is skipped and counted (``bad``), logged once per sender, and never raised into the
@@ -36,7 +36,9 @@ from typing import Generic, TypeVar
 
 import zenoh
 
-from bintrack.live.bus import DEFAULT_INBOX, BadInput, Inbox, open_session, zenoh_config
+from bintrack.live.bad_input import BadInput
+from bintrack.live.inbox import DEFAULT_INBOX, Inbox
+from bintrack.live.session_options import open_session, zenoh_config
 from bintrack.keys import ROOT, Keys, parse_key
 from bintrack.messages import LocalEstimate, Message, MessageError, TrackSet, Transition, decode
 
@@ -147,7 +149,7 @@ class Subscription(Generic[M]):
 class BintrackClient:
     """A Zenoh session on network ``net`` with decoding subscriptions and queries.
 
-    Options mirror the services' bus options (:func:`bintrack.live.bus.add_bus_arguments`):
+    Options mirror the services' bus options (:func:`bintrack.live.session_options.add_bus_arguments`):
     ``connect`` endpoints (default ``tcp/127.0.0.1:7447`` in client mode), ``mode``
     (``client``, ``peer`` or ``router``), ``listen`` endpoints, ``config`` (a Zenoh JSON5 file;
     default ``$ZENOH_CONFIG`` if set), ``cfg`` (``KEY:VALUE`` overrides) and ``wait`` (how long
@@ -184,7 +186,7 @@ class BintrackClient:
 
     @classmethod
     def from_args(cls, args: argparse.Namespace, **kwargs) -> BintrackClient:
-        """A client from the options of :func:`bintrack.live.bus.add_bus_arguments`."""
+        """A client from the options of :func:`bintrack.live.session_options.add_bus_arguments`."""
         return cls(net=args.net, connect=args.connect, mode=args.mode, listen=args.listen,
                    config=args.config, cfg=args.cfg, wait=args.wait, **kwargs)
 

@@ -1,0 +1,72 @@
+"""A service's one subscriber and the routing of its samples to handlers.
+
+A service has one Zenoh subscriber, on its listen key (its whole network unless it narrows
+it), and routes samples to handlers itself: Zenoh delivers one subscriber's samples in the
+order each publisher sent them, but calls different subscribers from different threads, so
+separate subscribers could see a publisher's messages on two keys swapped. Control samples
+(clock, end of stream, progress, done) pass the :class:`~bintrack.live.control_guard.ControlGuard`
+first. The subscriber hears other sessions only (its own puts are not delivered back to it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import zenoh
+
+from bintrack.keys import parse_key
+from bintrack.live.control_guard import ControlGuard
+
+ROUTE_CACHE = 65536  # distinct keys whose handlers are remembered (a bound against key floods)
+GUARDED_KINDS = frozenset({"clock", "eos", "progress", "done"})  # what the control guard checks
+
+Handler = Callable[[zenoh.Sample], None]
+
+
+class Dispatch:
+    """Routes the samples of one subscriber on ``listen_key`` to the handlers of the key
+    expressions that include their keys, control samples only once ``guard`` admits them."""
+
+    def __init__(self, listen_key: str, guard: ControlGuard):
+        self.listen_key = listen_key
+        self.guard = guard
+        self._listen = zenoh.KeyExpr(listen_key)
+        self._routes: list[tuple[zenoh.KeyExpr, Handler]] = []
+        self._cache: dict[str, tuple[bool, tuple[Handler, ...]]] = {}
+        self.subscriber = None
+
+    def add(self, key_expr: str, handler: Handler) -> bool:
+        """Route the samples whose keys ``key_expr`` includes to ``handler``; True for the first
+        route (the caller then declares the subscriber, with :meth:`route` as its handler)."""
+        pattern = zenoh.KeyExpr(key_expr)
+        if not self._listen.includes(pattern):
+            raise ValueError(f"{key_expr} is outside this service's subscription {self.listen_key}")
+        self._routes.append((pattern, handler))
+        self._cache.clear()
+        return len(self._routes) == 1
+
+    def route(self, sample: zenoh.Sample) -> None:
+        """Hand ``sample`` to its handlers (on the service's loop)."""
+        key = str(sample.key_expr)
+        entry = self._cache.get(key)
+        if entry is None:
+            entry = self._entry(key)
+        guarded, handlers = entry
+        if guarded and not self.guard.admit(sample):  # clock and control/* only from their token holders
+            return
+        for handler in handlers:
+            handler(sample)
+
+    def _entry(self, key: str) -> tuple[bool, tuple[Handler, ...]]:
+        """(whether the control guard must see it, the handlers) of a concrete key, kept per
+        key (the keys of a network are few: no key-expression matching per sample)."""
+        expr = zenoh.KeyExpr(key)
+        handlers = tuple(handler for pattern, handler in self._routes if pattern.includes(expr))
+        try:
+            guarded = parse_key(key).kind in GUARDED_KINDS
+        except ValueError:
+            guarded = False
+        if len(self._cache) >= ROUTE_CACHE:
+            self._cache.clear()
+        entry = self._cache[key] = (guarded, handlers)
+        return entry

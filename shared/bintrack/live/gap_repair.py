@@ -1,0 +1,153 @@
+"""How a transition consumer gets every transition once: ``seq`` gaps repaired from the
+sensors' ``state`` queryables, transitions a sensor agent says it sent that never arrived
+fetched the same way, restarted sensor agents followed, and duplicates dropped (DESIGN §3)."""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from bintrack.keys import Keys
+from bintrack.live.sequence_checks import SequenceCheck, SourceCheck
+from bintrack.messages import MessageError, SensorState, Transition, decode
+
+log = logging.getLogger("bintrack")
+
+
+@dataclass
+class IntakeState:
+    """What a consumer knows of the transitions it took (kept in its checkpoint)."""
+
+    sequence: SequenceCheck = field(default_factory=SequenceCheck)
+    sources: SourceCheck = field(default_factory=SourceCheck)
+    fetched: set[tuple[str | None, int | None]] = field(default_factory=set)  # fetched from state; may still arrive
+    newest: dict[str, float] = field(default_factory=dict)  # event time of the newest transition taken, per sensor
+    restarts: set[str | None] = field(default_factory=set)  # sources seen counting from 1 again (logged once)
+
+
+class GapRepair:
+    """Admits each transition of ``sensors`` once, in any order, to ``take``; ``query(selector,
+    timeout)`` asks the sensors' state queryables (blocking), ``report(key, reason)`` counts a
+    bad or duplicate input."""
+
+    def __init__(self, who: str, keys: Keys, sensors: set[str], take: Callable[[Transition], None],
+                 query: Callable[[str, float], list[bytes]], report: Callable[[str, str], None],
+                 state: IntakeState | None = None):
+        self.who = who
+        self.keys = keys
+        self.sensors = sensors
+        self._take = take
+        self.query = query
+        self.report = report
+        self.state = state if state is not None else IntakeState()
+
+    def receive(self, transition: Transition, key: str) -> None:
+        """A transition that arrived on ``key``: taken, repaired after a gap, or dropped."""
+        state = self.state
+        if transition.sensor not in self.sensors:
+            state.sources.accept(transition)  # another region's sensor: its agent's count stays whole
+            return
+        self.follow_restart(transition)
+        kind = state.sequence.classify(transition)
+        if kind == "duplicate" or state.sources.seen(transition):
+            if (transition.source, transition.source_seq) in state.fetched:
+                state.fetched.discard((transition.source, transition.source_seq))  # fetched before it arrived
+            else:
+                self.report(key, f"duplicate: seq {transition.seq} seen already")
+            return
+        if kind == "gap":
+            self.repair(transition)
+        self.take(transition)
+
+    def follow_restart(self, transition: Transition) -> None:
+        """A restarted sensor agent counts ``seq`` (and, under the same id, ``source_seq``) from
+        1 again: its transitions look old to the counters although they are newer in event
+        time than anything taken of their sensor. Forget the old counts, so that they are taken
+        (a genuine duplicate is never newer than what was taken)."""
+        state = self.state
+        old = state.sequence.classify(transition) == "duplicate" or state.sources.seen(transition)
+        if not old or transition.t <= state.newest.get(transition.sensor, -math.inf):
+            return
+        state.sequence.last.pop(transition.sensor, None)
+        if state.sources.seen(transition):
+            state.sources.forget(transition.source)
+        if transition.source not in state.restarts:
+            state.restarts.add(transition.source)
+            log.info("%s: %s counts its transitions from 1 again (a sensor agent restarted); following it",
+                     self.who, transition.source or transition.sensor)
+
+    def repair(self, transition: Transition) -> None:
+        """Fetch the transitions lost before ``transition`` from its sensor's state queryable."""
+        since = self.state.sequence.last.get(transition.sensor, 0)
+        selector = f"{self.keys.state(transition.sensor)}?since={since}"
+        if not self.fetch_missed(selector, before=transition):
+            log.warning("%s: seq gap before %d of %s could not be repaired now (no state reply)%s", self.who,
+                        transition.seq, transition.sensor,
+                        "; asked again at its agent's next progress report" if transition.source else "")
+
+    def agent_sent(self, source: str, sent: int) -> None:
+        """A sensor agent says it has sent ``sent`` transitions: fetch any that did not arrive."""
+        first = self.state.sources.first_missing(source, sent)
+        if first is not None:
+            selector = f"{self.keys.state()}?source={source};after={first - 1}"
+            if not self.fetch_missed(selector, upto=sent):
+                log.warning("%s: %s sent transitions that were lost and could not be fetched", self.who, source)
+
+    def taken(self, transition: Transition) -> bool:
+        """Whether ``transition`` was taken already: by its agent's count where it carries one
+        (exact in any order: a transition lost before a later one of its sensor that was taken
+        is fetched afterwards), else by its sensor's ``seq``."""
+        if transition.source is not None and transition.source_seq is not None:
+            return self.state.sources.seen(transition)
+        return self.state.sequence.classify(transition) == "duplicate"
+
+    def fetch_since_received(self) -> int:
+        """Fetch from the sensors' state every transition sent after the last one received in
+        order: of each sensor (by ``seq``, from the lowest last seq of all sensors on; the
+        duplicates are left out) and of each known sensor agent; how many were taken."""
+        before = len(self.state.fetched)
+        since = min((self.state.sequence.last.get(sensor, 0) for sensor in self.sensors), default=0)
+        self.fetch_missed(f"{self.keys.state()}?since={since}")
+        for source, received in self.state.sources.contiguous().items():
+            self.fetch_missed(f"{self.keys.state()}?source={source};after={received}")
+        return len(self.state.fetched) - before
+
+    def fetch_missed(self, selector: str, before: Transition | None = None, upto: int | None = None) -> bool:
+        """Take the ``missed`` transitions of every state reply to ``selector``, oldest first:
+        those before ``before`` (same sensor), or with source_seq ≤ ``upto``.
+
+        The get blocks the loop on purpose: the fetched transitions must be taken before the
+        next clock tick moves the watermark past them. A reply takes milliseconds; only a
+        sensor agent that is gone costs the timeout.
+        """
+        missed: list[Transition] = []
+        replied = False
+        for payload in self.query(selector, 2.0):
+            try:
+                state = decode(SensorState, payload)
+            except MessageError as exc:
+                self.report(selector, exc.reason)
+                continue
+            replied = True
+            missed.extend(state.missed)
+        for transition in sorted(missed, key=lambda tr: (tr.sensor, tr.seq)):
+            if before is not None and (transition.sensor != before.sensor or transition.seq >= before.seq):
+                continue
+            if upto is not None and transition.source_seq > upto:
+                continue
+            if not self.taken(transition):
+                self.take(transition)
+                self.state.fetched.add((transition.source, transition.source_seq))
+        return replied
+
+    def take(self, transition: Transition) -> None:
+        """Count ``transition`` as received and hand it on if it is of one of ``sensors``."""
+        state = self.state
+        state.sources.accept(transition)
+        if transition.sensor not in self.sensors:
+            return  # another region's sensor: received (its agent's count is whole), not tracked
+        state.sequence.accept(transition)
+        state.newest[transition.sensor] = max(transition.t, state.newest.get(transition.sensor, -math.inf))
+        self._take(transition)

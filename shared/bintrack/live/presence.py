@@ -1,0 +1,96 @@
+"""Who is on the network: the one liveliness subscriber of a service.
+
+Every service instance holds a token ``alive/<service>/<id>`` (a region's base station also
+``region/<r>/alive``). A service follows them through one :class:`Presence`, with history (the
+tokens declared before it came), and hands each change to the parts that care: the control
+guard, the upstream watermark, end of stream, replay's flow control, the recorder, the merge.
+A listener added later is told at once of the tokens present, as a subscriber with history
+would be.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import zenoh
+
+from bintrack.keys import Keys, ParsedKey, parse_key
+
+PRESENCE_KINDS = frozenset({"alive", "region_alive"})
+
+# listener(parsed key, present): present False when the token was withdrawn (or its holder lost)
+Listener = Callable[[ParsedKey, bool], None]
+
+
+class Presence:
+    """The liveliness tokens of one network, followed by one subscriber (declared by
+    :meth:`declare`), and the listeners to tell of each change, in the order they were added."""
+
+    def __init__(self, keys: Keys):
+        self.keys = keys
+        self.present: dict[str, ParsedKey] = {}  # token key → its parse, while declared
+        self._listeners: list[Listener] = []
+        self._subscriber = None
+
+    def listen(self, listener: Listener) -> None:
+        """Tell ``listener`` of every token present now, then of each change."""
+        self._listeners.append(listener)
+        for parsed in list(self.present.values()):
+            listener(parsed, True)
+
+    def declare(self, session: zenoh.Session, deliver: Callable[[Callable[[zenoh.Sample], None]], Callable]) -> None:
+        """Subscribe (once) to the network's tokens; ``deliver`` wraps the handler so that it runs
+        on the service's loop (its inbox's callback)."""
+        if self._subscriber is None:
+            self._subscriber = session.liveliness().declare_subscriber(self.keys.all(), deliver(self.on_sample),
+                                                                       history=True)
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        """A token declared (PUT) or withdrawn (DELETE)."""
+        key = str(sample.key_expr)
+        try:
+            parsed = parse_key(key)
+        except ValueError:
+            return
+        if parsed.kind not in PRESENCE_KINDS:
+            return
+        present = sample.kind == zenoh.SampleKind.PUT
+        if present:
+            self.present[key] = parsed
+        else:
+            self.present.pop(key, None)
+        for listener in self._listeners:
+            listener(parsed, present)
+
+    def holders(self, service: str) -> list[str]:
+        """The instances of ``service`` whose tokens are present."""
+        return [p.instance for p in self.present.values() if p.kind == "alive" and p.service == service]
+
+    def undeclare(self) -> None:
+        if self._subscriber is not None:
+            self._subscriber.undeclare()
+            self._subscriber = None
+
+
+class OwnToken:
+    """A service instance's own liveliness token ``key``, declared while it serves."""
+
+    def __init__(self, key: str):
+        self.key = key
+        self._token = None
+
+    def declare(self, session: zenoh.Session) -> None:
+        self._token = session.liveliness().declare_token(self.key)
+
+    def withdraw(self) -> bool:
+        """Withdraw the token if declared; whether it was."""
+        if self._token is None:
+            return False
+        self._token.undeclare()
+        self._token = None
+        return True
+
+
+def token_present(session: zenoh.Session, key: str) -> bool:
+    """Whether a liveliness token on ``key`` is declared (a blocking get)."""
+    return any(reply.ok is not None for reply in session.liveliness().get(key, timeout=1.0))

@@ -1,0 +1,99 @@
+"""The recorder's files: one MCAP file, or a series split by size or event-time span, each
+flushed now and then so that a kill loses little, and finalised at the end."""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+from bintrack.formats import FormatError
+from bintrack.live.recording import RecordingWriter, open_recording
+from bintrack.messages import Deployment
+
+FLUSH_INTERVAL, FLUSH_SPAN = 5.0, 32.0  # s of wall clock or of event time between two flushes of the file
+CHUNK_SIZE = 1024 * 1024  # bytes: few chunks, so that the chunk index kept in memory stays small
+
+log = logging.getLogger("bintrack")
+
+
+def part_path(out: str, part: int) -> str:
+    """The file of split ``part``: ``out`` itself for part 0, else ``<stem>_<part>.mcap``."""
+    return out if part == 0 else str(Path(out).with_name(f"{Path(out).stem}_{part}.mcap"))
+
+
+class RecordingFiles:
+    """The files of recording ``out`` of ``deployment`` on network ``net``, from split ``part``
+    on; a new file once one holds ``split_size`` bytes or spans ``split_duration`` s."""
+
+    def __init__(self, out: str, deployment: Deployment, net: str, part: int = 0,
+                 split_size: int | None = None, split_duration: float | None = None):
+        self.out = out
+        self.deployment = deployment
+        self.net = net
+        self.part = part
+        self.path = part_path(out, part)
+        self.split_size = split_size
+        self.split_duration = split_duration
+        self.writer: RecordingWriter | None = None
+        self.part_start: float | None = None  # event time of the first tick of the current file
+        self.flushed_at, self.flushed_t = time.monotonic(), None
+
+    def open(self) -> None:
+        """Start the current part's file (raises OSError); the header and the deployment are on
+        disk whatever happens next."""
+        self.writer = RecordingWriter(self.path, self.deployment, self.net, chunk_size=CHUNK_SIZE)
+        self.writer.flush()
+
+    def copy_from(self, path: Path) -> tuple[int, float, float]:
+        """Copy the readable records of an interrupted recording into the current file: (how
+        many, the event time of the newest, that of the newest track set; s)."""
+        count, last_t, last_tracks = 0, 0.0, float("-inf")
+        try:
+            for record in open_recording(path).records():
+                self.writer.write(record.key, record.t, record.payload, record.received_ns)
+                if record.kind == "tracks":
+                    last_tracks = max(last_tracks, record.t)
+                last_t = max(last_t, record.t)
+                count += 1
+        except FormatError as exc:
+            log.warning("recorder: %s; kept %d messages of it", exc, count)
+        return count, last_t, last_tracks
+
+    @property
+    def closed(self) -> bool:
+        return self.writer is None or self.writer.closed
+
+    def split_before(self, t: float) -> bool:
+        """Before the clock tick at ``t`` (s), so that each file starts with one: finalise the file
+        and go on in the next once it is full; whether it did."""
+        if self.part_start is None:
+            self.part_start = t
+        size, span = self.split_size, self.split_duration
+        if not ((size and Path(self.path).stat().st_size >= size) or (span and t - self.part_start >= span)):
+            return False
+        self.finalise()
+        self.part += 1
+        self.path = part_path(self.out, self.part)
+        self.open()
+        self.part_start = t
+        log.info("recorder: recording on into %s", self.path)
+        return True
+
+    def tick(self, t: float) -> None:
+        """After the clock tick at ``t`` (s): flush every FLUSH_INTERVAL s of wall clock or
+        FLUSH_SPAN s of event time. Each flush closes an MCAP chunk (its index, an entry per
+        channel, stays in memory until the file is finalised), so not at every tick. What a kill
+        loses since is fetched back for the track sets (tracks?after=T); the other messages of
+        that span are missing."""
+        now = time.monotonic()
+        if self.flushed_t is None:
+            self.flushed_t = t
+        if now - self.flushed_at >= FLUSH_INTERVAL or t - self.flushed_t >= FLUSH_SPAN:
+            self.writer.flush()
+            self.flushed_at, self.flushed_t = now, t
+
+    def finalise(self) -> None:
+        if self.writer is not None and not self.writer.closed:
+            self.writer.close()
+            log.info("recorder: %d messages recorded in %s", self.writer.count, self.writer.path)

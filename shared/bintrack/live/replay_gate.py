@@ -1,0 +1,124 @@
+"""When replay may go on: the services it waits for are live, the router is there, and every
+consumer has acknowledged what a tick or the end of stream owes (flow control, DESIGN §3)."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+
+from bintrack.keys import ParsedKey
+from bintrack.live.replay_schedule import Consumers, Pacer, Publish
+
+PROGRESS_INTERVAL = 5.0  # s of wall clock between "waiting for" lines
+REPLAY = "replay"
+
+log = logging.getLogger("bintrack")
+
+
+class ReplayGate:
+    """Who replay waits for. ``wanted``: the ``--wait-for`` services (``NAME`` or ``NAME*N``, N
+    live instances); ``router_lost()`` whether the session has lost its router; ``stopping``
+    is set when replay stops."""
+
+    def __init__(self, wanted: list[str], router_lost: Callable[[], bool], stopping: asyncio.Event):
+        self.wanted = wanted
+        self.wanted_missing = list(wanted)  # those of them with no live instance
+        self.router_lost = router_lost
+        self.stopping = stopping
+        self.alive: set[tuple[str, str]] = set()
+        self.consumers = Consumers()
+        self.last_tick: float | None = None  # the last tick published (s)
+        self.pacer: Pacer | None = None
+        self.pauses = 0
+        self.changed = asyncio.Event()
+
+    def on_presence(self, parsed: ParsedKey, present: bool) -> None:
+        """A service's token came or went (a Presence listener): every live service but a
+        replay consumes the clock and owes its acknowledgements."""
+        if parsed.kind != "alive":
+            return
+        entry = (parsed.service, parsed.instance)
+        if present:
+            self.alive.add(entry)
+            if parsed.service != REPLAY:
+                self.consumers.appeared(entry, self.last_tick)
+        else:
+            self.alive.discard(entry)
+            self.consumers.vanished(entry)
+        self.wanted_missing = []
+        for wanted in self.wanted:  # NAME, or NAME*N: N live instances of it
+            name, _, count = wanted.partition("*")
+            if sum(service == name for service, _ in self.alive) < (int(count) if count.isdigit() else 1):
+                self.wanted_missing.append(wanted)
+        self.changed.set()
+
+    def reported(self, service: str, instance: str, t: float) -> None:
+        """A consumer's progress report: it has handled the ticks up to ``t`` (s)."""
+        self.consumers.reported((service, instance), t)
+        self.changed.set()
+
+    def missing(self) -> list[str]:
+        """The --wait-for services with no live instance, and the router if it is lost."""
+        missing = self.wanted_missing
+        return missing + ["the router"] if self.router_lost() else missing
+
+    def clear(self) -> bool:
+        """Whether a sample may go out at once (nothing missing)."""
+        return not self.wanted_missing and not self.router_lost()
+
+    async def until(self, condition: Callable[[], bool], waiting_for: Callable[[], str],
+                    timeout: float | None = None) -> bool:
+        """Wait until ``condition()`` holds (True), replay stops or ``timeout`` s pass (False);
+        says what it waits for every few seconds."""
+        start = last_said = time.monotonic()
+        while not condition():
+            if self.stopping.is_set():
+                return False
+            now = time.monotonic()
+            if timeout is not None and now - start >= timeout:
+                return False
+            if now - last_said >= PROGRESS_INTERVAL:
+                log.info("replay: waiting for %s", waiting_for())
+                last_said = now
+            self.changed.clear()
+            try:
+                await asyncio.wait_for(self.changed.wait(), 1.0)
+            except TimeoutError:
+                pass
+        return True
+
+    async def hold_while_missing(self, t: float) -> bool:
+        """While an awaited service has no live instance (it died, or lost the router), hold the
+        clock at ``t`` (s); True once all are back (False if stopping)."""
+        if not self.missing():
+            return True
+        gone = ", ".join(self.missing())
+        self.pauses += 1
+        log.warning("replay: %s gone; holding event time at t=%.3f s until it is back", gone, t)
+        started = time.monotonic()
+        if not await self.until(lambda: not self.missing(), lambda: "services " + ", ".join(self.missing())):
+            return False
+        held = time.monotonic() - started
+        self.pacer.hold(held)
+        log.info("replay: %s back after %.1f s; resuming at t=%.3f s", gone, held, t)
+        return True
+
+    async def ready_for(self, action, skip_ack: bool) -> bool:
+        """Wait until every awaited service is live and, for a tick or the end, has acknowledged
+        what it must; False if stopping. (A consumer that dies no longer owes its
+        acknowledgement, so liveness is checked again after it.)"""
+        while True:
+            if not await self.hold_while_missing(action.t):
+                return False
+            if not isinstance(action, Publish) and action.ack is not None and not skip_ack:
+                if not await self.acknowledged(action.ack):
+                    return False
+            if not self.missing():
+                return True
+
+    async def acknowledged(self, ack: float) -> bool:
+        return await self.until(lambda: not self.consumers.owing(ack),
+                                lambda: f"progress >= {ack:g} s from "
+                                + ", ".join(f"{s}/{i}" for s, i in self.consumers.owing(ack)))

@@ -1,0 +1,121 @@
+"""What replay plays: a dataset folder or a recording, as keys and payloads, and the raw
+samples of its last ticks (for a restarted sensor agent's ``recent`` query and for sending
+them again after replay itself restarted)."""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections import deque
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+import zenoh
+
+from bintrack.formats import TruthRow, open_dataset
+from bintrack.keys import Keys
+from bintrack.live.recording import Record, open_recording, replay_items, shift_payload
+from bintrack.live.replay_schedule import Publish
+from bintrack.messages import Clock, TruthSample, encode, encode_raw_sample
+
+Put = Callable[[str, bytes, bytes | None], None]
+
+
+class ReplaySource:
+    """The source at ``path`` (a ``.mcap`` recording, else a dataset folder); raises
+    FormatError for a bad one, having read every row before anything is published."""
+
+    def __init__(self, path: str, filters: Iterable[str], memory_ticks: int):
+        path = Path(path)
+        if path.suffix == ".mcap":
+            self.recording, self.dataset, self.truth = open_recording(path), None, []
+            self.deployment, self.net = self.recording.deployment, self.recording.net
+            self.total = None
+        else:
+            self.recording, self.dataset = None, open_dataset(path)
+            self.deployment = self.dataset.deployment
+            self.net = self.deployment.name
+            self.total = sum(1 for _ in self.dataset.events())  # validates every row before anything is published
+            # truth.csv, if the dataset has one, is published on `truth` (sorted by t; read and checked now)
+            self.truth = sorted(self.dataset.truth(), key=lambda row: row.t) if self.dataset.has_truth else []
+        self.filters = [zenoh.KeyExpr(k) for k in filters]
+        self._matches: dict[str, bool] = {}
+        self.keys: Keys | None = None  # the keys it is played on (set by :meth:`play_on`)
+        self.source_prefix = Keys(self.recording.net).prefix if self.recording is not None else None
+        self.raw_keys: dict[str, str] = {}  # sensor id → its raw key
+        # (tick before it, key, payload) of the raw samples since the last few ticks, for ``recent``
+        self.recent: deque[tuple[float, str, bytes]] = deque()
+        self.recent_ticks: deque[float] = deque(maxlen=memory_ticks)
+        self.last_tick: float | None = None
+
+    def play_on(self, keys: Keys) -> None:
+        self.keys = keys
+
+    def largest_step(self, period: float) -> float:
+        """The largest gap between two ticks (s): ``period``, or a recording's own if larger."""
+        if self.recording is None:
+            return period
+        ticks = [t for t, item in replay_items(self.recording) if item is None]
+        return max([period, *(b - a for a, b in zip(ticks, ticks[1:]))])
+
+    def _keep(self, key: str) -> bool:
+        if not self.filters:
+            return True
+        if key not in self._matches:
+            self._matches[key] = any(f.intersects(zenoh.KeyExpr(key)) for f in self.filters)
+        return self._matches[key]
+
+    def items(self) -> Iterable[tuple[float, object]]:
+        """One pass of the source: (event time s, item), in event-time order (None: a recorded tick)."""
+        if self.dataset is not None:
+            events = ((e.t, e) for e in self.dataset.events() if not self.filters or self._keep(self.keys.raw(e.sensor)))
+            if self.truth and self._keep(self.keys.truth()):
+                # truth.csv rows beside the events in event time; an event before a truth row at the same t
+                return heapq.merge(events, ((row.t, row) for row in self.truth), key=lambda item: item[0])
+            return events
+        return replay_items(self.recording, self._keep)
+
+    def publish(self, action: Publish, put: Put | None, attachment: bytes | None = None) -> None:
+        """Put the sample of ``action`` (a raw sample with ``attachment``) and keep a raw sample
+        for ``recent``; with ``put`` None only keep it (a restarted replay rebuilding what it had
+        published)."""
+        item = action.item
+        if isinstance(item, Record):
+            raw = item.kind == "raw"
+            if put is not None or raw:
+                key = self.keys.prefix + item.key[len(self.source_prefix):]
+                payload = shift_payload(item.payload, action.shift)
+                if put is not None:
+                    put(key, payload, attachment if raw else None)
+                if raw:
+                    self._remember(key, payload)
+        elif isinstance(item, TruthRow):
+            if put is not None:
+                put(self.keys.truth(), encode(TruthSample(t=action.t, target=item.target, x=item.x, y=item.y)), None)
+        else:
+            key = self.raw_keys.get(item.sensor) or self.raw_keys.setdefault(item.sensor, self.keys.raw(item.sensor))
+            payload = encode_raw_sample(action.t, item.sensor, item.value)
+            if put is not None:
+                put(key, payload, attachment)
+            self._remember(key, payload)
+
+    def _remember(self, key: str, payload: bytes) -> None:
+        """Keep a raw sample put after the last tick, for ``recent`` and for sending it again."""
+        self.recent.append((-math.inf if self.last_tick is None else self.last_tick, key, payload))
+
+    def ticked(self, t: float) -> None:
+        """After the tick at ``t`` (s): forget samples older than any consumer can still need (it
+        has acknowledged a tick at most max_ahead ticks back)."""
+        self.last_tick = t
+        self.recent_ticks.append(t)
+        oldest = self.recent_ticks[0]
+        while self.recent and self.recent[0][0] < oldest:
+            self.recent.popleft()
+
+    def recent_answer(self, after: float) -> list[bytes]:
+        """``control/recent?after=T``: each raw sample published after the tick at ``after`` (s),
+        in order, then a ``Clock`` (the last tick published, 0 before the first) that ends the
+        answer, so the asker knows it is complete."""
+        answer = [payload for tick, _, payload in self.recent if tick >= after]
+        answer.append(encode(Clock(t=0.0 if self.last_tick is None else self.last_tick)))
+        return answer

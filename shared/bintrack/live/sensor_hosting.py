@@ -1,0 +1,136 @@
+"""The sensors one sensor agent hosts: raw samples in arrival order → transitions (papers 000,
+001), each sensor's recent transitions for gap repair, and what a checkpoint keeps of them."""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+from bintrack.formats import Event
+from bintrack.keys import Keys
+from bintrack.messages import SCHEMA_VERSION, RawSample, SensorState, Transition, encode_transition
+from bintrack.transition_detector import TransitionDetector
+
+HISTORY = 256  # transitions kept per sensor for gap repair …
+HISTORY_SPAN = 60.0  # … and no older than this, s of event time behind the clock (memory stays flat)
+RESUME_SPAN = 5.0  # s of event time of sent transitions a checkpoint keeps (those a kill may catch in flight)
+TRANSITION_FIELDS = tuple(Transition.model_fields)  # a checkpoint's layout of a sent transition: version, then Sent's
+
+
+class Sent(NamedTuple):
+    """A transition this agent sent: the fields of ``Transition`` but its version. The model is
+    built only for a ``state`` reply; the hot path packs these fields directly."""
+
+    t: float
+    sensor: str
+    value: int
+    previous: int
+    seq: int
+    source: str
+    source_seq: int
+
+    def message(self) -> Transition:
+        return Transition(**self._asdict())
+
+
+@dataclass
+class SensorAgentCheckpoint:
+    """A sensor agent's checkpoint, taken at a clock tick it acknowledged."""
+
+    tick: float  # s
+    sent: int  # transitions sent so far
+    detector: TransitionDetector | None
+    sensors: dict[str, float]  # hosted sensor → event time of its last sample, s
+    recent: list[tuple] = field(default_factory=list)  # (schema version, *Sent) of the last RESUME_SPAN s
+
+
+class HostedSensor:
+    """One sensor: its samples in arrival order → transitions, and its recent history."""
+
+    def __init__(self, sensor_id: str, detector: TransitionDetector, hosts: "HostedSensors"):
+        self.id = sensor_id
+        self.detector = detector
+        self.hosts = hosts
+        self.history: deque[Sent] = deque(maxlen=HISTORY)
+        self.last_t = float("-inf")
+        self.key = hosts.keys.transition(sensor_id)
+
+    def handle(self, sample: RawSample) -> None:
+        hosts = self.hosts
+        if sample.t < self.last_t:
+            hosts.report(hosts.keys.raw(self.id), f"out of order: t={sample.t} after t={self.last_t}")
+            return
+        self.last_t = sample.t
+        change = self.detector.change(Event(sample.t, self.id, sample.value))
+        if change is None:
+            return
+        hosts.sent += 1
+        transition = Sent(sample.t, self.id, sample.value, change[0], change[1], hosts.instance, hosts.sent)
+        self.remember(transition)
+        hosts.recent.append(transition)
+        if hosts.lose and hosts.sent % hosts.lose == 0:
+            return  # --lose: a lossy link for tests; the receivers must repair the gap
+        hosts.put(self.key, encode_transition(*transition))
+
+    def remember(self, transition: Sent) -> None:
+        """Keep ``transition`` for gap repair (the trail says when to forget it)."""
+        self.history.append(transition)
+        self.hosts.trail.append(transition)
+
+    def state(self, since: int | None, after_source_seq: int | None) -> SensorState:
+        """Status and seq; ``missed``: transitions with seq > ``since`` or source_seq > ``after_source_seq``."""
+        value, seq = self.detector.status(self.id)
+        missed = [tr.message() for tr in self.history
+                  if (since is not None and tr.seq > since)
+                  or (after_source_seq is not None and tr.source_seq > after_source_seq)]
+        return SensorState(t=self.last_t if self.last_t > float("-inf") else 0.0, sensor=self.id,
+                           value=value, seq=seq, missed=missed)
+
+
+class HostedSensors:
+    """The hosted sensors of agent ``instance``: ``put(key, payload)`` sends a transition,
+    ``report(key, reason)`` counts a bad input; ``lose`` drops every lose-th transition (tests)."""
+
+    def __init__(self, keys: Keys, instance: str, detector: TransitionDetector, hosted: list[str],
+                 put: Callable[[str, bytes], None], report: Callable[[str, str], None], lose: int = 0):
+        self.keys = keys
+        self.instance = instance
+        self.put = put
+        self.report = report
+        self.lose = lose
+        self.sent = 0
+        self.recent: deque[Sent] = deque()  # the transitions sent in the last RESUME_SPAN s
+        self.trail: deque[Sent] = deque()  # every sensor's history, oldest first (to trim them)
+        self.sensors = {sid: HostedSensor(sid, detector, self) for sid in hosted}
+
+    def forget_before(self, t: float) -> None:
+        """Drop the histories older than event time ``t`` (s): each transition is looked at once."""
+        while self.trail and self.trail[0].t < t:
+            history = self.sensors[self.trail.popleft().sensor].history
+            while history and history[0].t < t:
+                history.popleft()
+
+    def checkpoint(self, tick: float) -> SensorAgentCheckpoint:
+        """What to keep at the clock tick ``tick`` (s) acknowledged."""
+        detector = next(iter(self.sensors.values())).detector if self.sensors else None
+        return SensorAgentCheckpoint(tick, self.sent, detector, {sid: h.last_t for sid, h in self.sensors.items()},
+                                     [(SCHEMA_VERSION, *tr) for tr in self.recent])
+
+    def trim(self, tick: float) -> None:
+        """Forget the sent transitions older than RESUME_SPAN before ``tick`` (s)."""
+        while self.recent and self.recent[0].t < tick - RESUME_SPAN:
+            self.recent.popleft()
+
+    def restore(self, saved: SensorAgentCheckpoint) -> None:
+        """Take back the statuses, counters and recent transitions of ``saved``."""
+        self.sent = saved.sent
+        for fields in saved.recent:
+            kept = dict(zip(TRANSITION_FIELDS, fields))
+            transition = Sent(**{name: kept[name] for name in Sent._fields})
+            self.recent.append(transition)
+            self.sensors[transition.sensor].remember(transition)
+        for sid, last_t in saved.sensors.items():
+            hosted = self.sensors[sid]
+            hosted.detector, hosted.last_t = saved.detector, last_t

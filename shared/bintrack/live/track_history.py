@@ -1,0 +1,67 @@
+"""The track sets a service published lately, and the ``tracks`` queryable that serves them
+(the base station's, the merge's)."""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Iterable
+
+import zenoh
+
+from bintrack.messages import MessageError, TrackSet, decode, encode
+
+TRACKS_HISTORY = 1024  # recent track sets kept for the ``tracks?after=T`` queryable
+
+
+class TrackHistory:
+    """The latest ``TrackSet`` published on ``key`` and the TRACKS_HISTORY before it."""
+
+    def __init__(self, key: str):
+        self.key = key
+        self.latest: TrackSet | None = None
+        self.recent: deque[TrackSet] = deque(maxlen=TRACKS_HISTORY)
+
+    def add(self, tracks: TrackSet) -> None:
+        self.latest = tracks
+        self.recent.append(tracks)
+
+    def restore(self, latest: TrackSet | None, recent: Iterable[TrackSet] = ()) -> None:
+        """Take back what a checkpoint kept."""
+        self.latest = latest
+        self.recent.extend(recent)
+
+    def answer(self, query: zenoh.Query) -> None:
+        """Reply to ``query`` with the latest ``TrackSet`` (none before the first); with
+        ``?after=T``, with each of the recent ones later than T (s), in order: what a recorder
+        that lost some asks for. A T that is not a number gets an error reply."""
+        after = query.parameters.get("after")
+        if after is None:
+            if self.latest is not None:
+                query.reply(self.key, encode(self.latest))
+            return
+        try:
+            after = float(after)
+        except ValueError:
+            query.reply_err(b"after must be a number of seconds")
+            return
+        for tracks in self.recent:
+            if tracks.t > after:
+                query.reply(self.key, encode(tracks))
+
+
+def fetch_tracks_after(query: Callable[[str, float], list[bytes]], key: str, after: float,
+                       report: Callable[[str, str], None]) -> list[tuple[TrackSet, bytes]]:
+    """(track set, payload) of each one later than ``after`` (s) that the ``tracks`` queryable on
+    ``key`` still holds, in order, each later than the one before; a bad reply is reported.
+    ``query(selector, timeout)`` is a blocking get."""
+    fetched = []
+    for payload in query(f"{key}?after={after!r}", 2.0):
+        try:
+            tracks = decode(TrackSet, payload)
+        except MessageError as exc:
+            report(key, exc.reason)
+            continue
+        if tracks.t > after:
+            fetched.append((tracks, payload))
+            after = tracks.t
+    return fetched

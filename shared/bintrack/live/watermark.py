@@ -1,0 +1,122 @@
+"""The watermark of a service that runs a tracker: the event time before which every input has
+arrived (an adaptive watermark, DESIGN §5).
+
+It is the least of the latest clock tick less ``--lateness`` and what the upstream services'
+progress reports allow (:class:`UpstreamWatermark`), which follows their instances through
+their liveliness tokens. It only moves forward: :meth:`Watermark.advance` says where to
+release the tracker to, once, when it moved.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+
+from bintrack.keys import ParsedKey
+
+DEPARTED_HOLD = 2.0  # s of event time an upstream instance that went away still holds the watermark
+
+
+class Watermark:
+    """One service's watermark (s of event time): the clock, its lateness, the upstream's
+    progress, and ``released``, how far the tracker was released to.
+
+    ``lead()`` is the event time the replays announced may be in flight (their ticks' step
+    times ``--max-ahead``; see :mod:`bintrack.live.control_guard`)."""
+
+    def __init__(self, services: Iterable[str], lateness: float, lead: Callable[[], float],
+                 released: float = -math.inf):
+        self.upstream = UpstreamWatermark(services, DEPARTED_HOLD)
+        self.lateness = lateness
+        self.lead = lead
+        self.last_tick = -math.inf
+        self.released = released
+
+    def on_presence(self, parsed: ParsedKey, present: bool) -> None:
+        """Follow the upstream instances' tokens (a :class:`~bintrack.live.presence.Presence` listener)."""
+        if parsed.kind == "alive":
+            self.upstream.on_liveliness(parsed.service, parsed.instance, present)
+
+    def tick(self, t: float) -> None:
+        """A clock tick at ``t`` (s) arrived."""
+        self.last_tick = max(self.last_tick, t)
+
+    def reported(self, service: str, instance: str, t: float) -> None:
+        """An upstream instance has published everything before ``t`` (s)."""
+        self.upstream.reported(service, instance, t)
+
+    def current(self) -> float:
+        """The event time (s) before which every input has arrived."""
+        return min(self.last_tick - self.lateness, self.upstream.bound(self.last_tick, self.lead()))
+
+    def advance(self) -> float | None:
+        """The new watermark (s) if it moved past ``released`` (which it then becomes), else None."""
+        watermark = self.current()
+        if watermark <= self.released:
+            return None
+        self.released = watermark
+        return watermark
+
+
+class UpstreamWatermark:
+    """The event time before which every upstream service instance has published all it will
+    (an adaptive watermark, DESIGN §5), from their progress reports.
+
+    A sensor agent reports progress ``t`` after a clock tick once every sample before it is
+    handled, so all its transitions with event time < ``t`` are out (and arrived, in publisher
+    order, before the report; lost ones are fetched when the report comes). A tracker service
+    reports what it has released. ``bound(tick)`` is the least report of the live instances of
+    ``services`` (−inf for one that has not reported yet); an instance whose token went keeps
+    its last report as a floor until it is back (a restart under the same id) or the clock
+    advanced ``hold`` s plus the replay's lead past the first tick seen after the token went (it
+    is gone for good), so that what it sends after a restart is not late. The replay holds event
+    time while an awaited service is gone, but up to its lead (``--max-ahead`` clock periods, the
+    ``lead`` given to :meth:`bound`) of ticks it sent before may still be on their way: they
+    arrive on another path than the departure, so they must not use up the hold. Until an
+    instance of each of ``services`` has been seen it is −inf: their first outputs may arrive
+    after the first ticks, and a liveliness token comes on another path than the clock, so the
+    clock alone must not release past them. Once every instance seen has gone for good it is
+    +inf (the clock alone bounds).
+    """
+
+    def __init__(self, services, hold: float):
+        self.services = frozenset(services)
+        self.hold = hold
+        self.alive: set[tuple[str, str]] = set()
+        self.progress: dict[tuple[str, str], float] = {}
+        # instance whose token went → the first tick (s) seen after it went (None: none yet)
+        self.departed: dict[tuple[str, str], float | None] = {}
+        self.unseen = set(self.services)  # services none of whose instances has been live yet
+
+    def on_liveliness(self, service: str, instance: str, present: bool) -> None:
+        entry = (service, instance)
+        if service not in self.services:
+            return
+        if present:
+            self.alive.add(entry)
+            self.departed.pop(entry, None)
+            self.unseen.discard(service)
+        elif entry in self.alive:
+            self.alive.discard(entry)
+            self.departed[entry] = None  # its floor: its last report, −inf if it never reported
+
+    def reported(self, service: str, instance: str, t: float) -> None:
+        entry = (service, instance)
+        self.progress[entry] = max(t, self.progress.get(entry, -math.inf))
+
+    def bound(self, tick: float, lead: float = 0.0) -> float:
+        """The watermark (s) the upstream allows when the latest clock tick is ``tick`` (s) and
+        the replay may have sent ticks up to ``lead`` s of event time ahead of what its consumers
+        acknowledged."""
+        least = -math.inf if self.unseen else math.inf
+        for entry in self.alive:
+            least = min(least, self.progress.get(entry, -math.inf))
+        for entry, since in list(self.departed.items()):
+            if since is None:
+                self.departed[entry] = since = tick
+            if tick >= since + self.hold + lead:
+                del self.departed[entry]
+                self.progress.pop(entry, None)
+            else:
+                least = min(least, self.progress.get(entry, -math.inf))
+        return least
