@@ -21,27 +21,18 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
-from dataclasses import dataclass
 
 import zenoh
 
 from bintrack.argtypes import positive_float
 from bintrack.keys import ParsedKey, parse_key
+from bintrack.live.checkpoint import MergeCheckpoint
 from bintrack.live.service import Service, log, service_main
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.live.track_history import TrackHistory
 from bintrack.messages import Clock, MessageError, TrackSet, decode
 from bintrack.regions import RegionMap
 from bintrack.trackers.multi.region_merge import MergeConfig, RegionMerge
-
-
-@dataclass
-class MergeCheckpoint:
-    """The merge's checkpoint: its state and the track sets it served."""
-
-    merge: RegionMerge
-    latest: TrackSet | None
-    history: list[TrackSet]
 
 
 class Merge(Service):

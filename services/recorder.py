@@ -23,7 +23,6 @@ import asyncio
 import logging
 import os
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import zenoh
@@ -31,6 +30,7 @@ import zenoh
 from bintrack.argtypes import positive_float, size_bytes
 from bintrack.errors import CommandError
 from bintrack.keys import ParsedKey
+from bintrack.live.checkpoint import RecorderCheckpoint
 from bintrack.live.end_of_stream import UpstreamDone
 from bintrack.live.record_filter import RecordFilter
 from bintrack.live.recording_files import RecordingFiles
@@ -42,13 +42,6 @@ log = logging.getLogger("bintrack")
 
 UPSTREAM = ("sensor_agent", "peer_agent", "basestation", "merge")
 WAIT_LOG_INTERVAL = 5.0  # s of wall clock between "still waiting" lines
-
-
-@dataclass
-class RecorderCheckpoint:
-    """Which split part the recorder was writing."""
-
-    part: int
 
 
 def add_arguments(parser: argparse.ArgumentParser, until_default: str = "eos") -> None:

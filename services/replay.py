@@ -27,7 +27,8 @@ from bintrack.formats import FormatError
 from bintrack.keys import Keys, parse_key
 from bintrack.live.control_guard import control_attachment
 from bintrack.live.replay_gate import ReplayGate
-from bintrack.live.replay_player import ReplayCheckpoint, ReplayPlayer
+from bintrack.live.checkpoint import ReplayCheckpoint
+from bintrack.live.replay_player import ReplayPlayer
 from bintrack.live.replay_schedule import TICK_FASTEST, TICK_WALL, default_clock_period, schedule
 from bintrack.live.replay_source import ReplaySource
 from bintrack.live.service import Service, service_main

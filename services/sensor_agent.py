@@ -19,7 +19,8 @@ import zenoh
 
 from bintrack.formats import check_value
 from bintrack.keys import parse_key
-from bintrack.live.sensor_hosting import HISTORY_SPAN, HostedSensors, SensorAgentCheckpoint
+from bintrack.live.checkpoint import SensorAgentCheckpoint
+from bintrack.live.sensor_hosting import HISTORY_SPAN, HostedSensors
 from bintrack.live.service import Service, log, service_main
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.messages import Clock, EndOfStream, MessageError, RawSample, decode_view, encode, is_resent

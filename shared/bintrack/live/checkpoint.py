@@ -1,6 +1,9 @@
 """A service's checkpoint file: written atomically, readable only by its owner, and refused
 when anybody else could have written it.
 
+Each service keeps a dataclass of its own, named here so that every layout is in one place; a
+:class:`Checkpointer` saves it with the run it belongs to and refuses one of another version.
+
 A checkpoint holds live Python objects (a tracker's state, a detector's), so it is a pickle,
 and unpickling a file runs whatever code the file names. The defence is the one OpenSSH uses
 for its keys: the file and its folder must belong to the user running the service and be
@@ -17,7 +20,15 @@ import pickle
 import stat
 import time
 from collections.abc import Callable
-from typing import Any
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from bintrack.live.gap_repair import IntakeState
+    from bintrack.messages import TrackSet
+    from bintrack.pipeline import TrackerDriver
+    from bintrack.trackers.multi.region_merge import RegionMerge
+    from bintrack.transition_detector import TransitionDetector
 
 CHECKPOINT_INTERVAL = 1.0  # s of wall clock between two throttled checkpoints …
 CHECKPOINT_SPAN = 8.0  # … or s of event time, whichever comes first (well inside the sensors' HISTORY_SPAN)
@@ -64,6 +75,55 @@ def save_checkpoint(path: str, state) -> None:
     with os.fdopen(fd, "wb") as handle:
         pickle.dump(state, handle, protocol=pickle.HIGHEST_PROTOCOL)
     os.replace(aside, path)
+
+
+@dataclass
+class IntakeCheckpoint:
+    """A transition consumer's checkpoint, taken after a clock tick's outputs went out."""
+
+    tick: float  # s: the clock tick it was taken at
+    driver: TrackerDriver
+    intake: IntakeState
+    extra: Any = None  # what the service adds (:meth:`TransitionConsumer.checkpoint_extra`)
+
+
+
+@dataclass
+class ReplayCheckpoint:
+    """Where replay was: the last tick it published (s) and how many samples it had published."""
+
+    tick: float
+    published: int
+
+
+
+@dataclass
+class SensorAgentCheckpoint:
+    """A sensor agent's checkpoint, taken at a clock tick it acknowledged."""
+
+    tick: float  # s
+    sent: int  # transitions sent so far
+    detector: TransitionDetector | None
+    sensors: dict[str, float]  # hosted sensor → event time of its last sample, s
+    recent: list[tuple] = field(default_factory=list)  # (schema version, *Sent) of the last RESUME_SPAN s
+
+
+
+@dataclass
+class MergeCheckpoint:
+    """The merge's checkpoint: its state and the track sets it served."""
+
+    merge: RegionMerge
+    latest: TrackSet | None
+    history: list[TrackSet]
+
+
+
+@dataclass
+class RecorderCheckpoint:
+    """Which split part the recorder was writing."""
+
+    part: int
 
 
 class Checkpointer:

@@ -8,9 +8,9 @@ import asyncio
 import logging
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 
 from bintrack.keys import Keys
+from bintrack.live.checkpoint import ReplayCheckpoint
 from bintrack.live.replay_gate import ReplayGate
 from bintrack.live.replay_schedule import End, Pacer, Publish, Tick
 from bintrack.live.replay_source import Put, ReplaySource
@@ -20,14 +20,6 @@ PROGRESS_INTERVAL = 5.0  # s of wall clock between progress lines
 YIELD_EVERY = 0.002  # s of wall clock between two turns given to the loop while publishing (waits give more)
 
 log = logging.getLogger("bintrack")
-
-
-@dataclass
-class ReplayCheckpoint:
-    """Where replay was: the last tick it published (s) and how many samples it had published."""
-
-    tick: float
-    published: int
 
 
 class ReplayPlayer:

@@ -5,11 +5,12 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+
 from typing import NamedTuple
 
 from bintrack.formats import Event
 from bintrack.keys import Keys
+from bintrack.live.checkpoint import SensorAgentCheckpoint
 from bintrack.messages import SCHEMA_VERSION, RawSample, SensorState, Transition, encode_transition
 from bintrack.transition_detector import TransitionDetector
 
@@ -33,17 +34,6 @@ class Sent(NamedTuple):
 
     def message(self) -> Transition:
         return Transition(**self._asdict())
-
-
-@dataclass
-class SensorAgentCheckpoint:
-    """A sensor agent's checkpoint, taken at a clock tick it acknowledged."""
-
-    tick: float  # s
-    sent: int  # transitions sent so far
-    detector: TransitionDetector | None
-    sensors: dict[str, float]  # hosted sensor → event time of its last sample, s
-    recent: list[tuple] = field(default_factory=list)  # (schema version, *Sent) of the last RESUME_SPAN s
 
 
 class HostedSensor:

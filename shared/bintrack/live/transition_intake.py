@@ -11,13 +11,12 @@ the tracker returns (``emit``).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any
 
 import zenoh
 
 from bintrack.keys import parse_key
-from bintrack.live.gap_repair import GapRepair, IntakeState
+from bintrack.live.checkpoint import IntakeCheckpoint
+from bintrack.live.gap_repair import GapRepair
 from bintrack.live.service import Service, log
 from bintrack.live.watermark import Watermark
 from bintrack.messages import Clock, Deployment, Message, Transition
@@ -25,16 +24,6 @@ from bintrack.pipeline import TrackerDriver
 from bintrack.trackers import Tracker
 
 RELEASED_NONE = -1.7976931348623157e308  # a progress report's "released nothing yet" (finite: inf is no JSON)
-
-
-@dataclass
-class IntakeCheckpoint:
-    """A transition consumer's checkpoint, taken after a clock tick's outputs went out."""
-
-    tick: float  # s: the clock tick it was taken at
-    driver: TrackerDriver
-    intake: IntakeState
-    extra: Any = None  # what the service adds (:meth:`TransitionConsumer.checkpoint_extra`)
 
 
 class TransitionConsumer(Service):
