@@ -173,7 +173,7 @@ def test_services_killed_mid_run_lose_only_what_is_logged(grid_slice, offline_ro
     fetches what it missed, so the track sets, identities included, are the offline ones at
     either speed. What a killed recorder loses (the other messages of its open chunk; track sets
     are fetched back) is logged with its span, which the recorder's flush interval bounds."""
-    from bintrack.services.recorder import FLUSH_INTERVAL, FLUSH_SPAN
+    from bintrack.live.recording_files import FLUSH_INTERVAL, FLUSH_SPAN
 
     recording = tmp_path / "run.mcap"
     # at --speed 0 the default 0.5 s ticks play the 20 s slice in a fraction of a second, over

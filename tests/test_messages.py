@@ -120,7 +120,7 @@ def test_a_raw_sample_encoded_without_its_model_has_the_models_bytes():
 
 def test_a_transition_encoded_without_its_model_has_the_models_bytes():
     from bintrack.messages import Transition, encode, encode_transition
-    from bintrack.services.sensor_agent import TRANSITION_FIELDS, Sent
+    from bintrack.live.sensor_hosting import TRANSITION_FIELDS, Sent
 
     assert TRANSITION_FIELDS == ("version", *Sent._fields)  # the sensor agent's checkpoint layout
     for fields in ((1.5, "a", 1, 0, 1, "agent-1", 7), (20.25, "n17", 0, 1, 12, None, None)):
