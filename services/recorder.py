@@ -1,8 +1,7 @@
 """Recorder: records everything of one network into an MCAP file that replay can play.
 
-    python -m bintrack.services.recorder --out FILE.mcap [--until eos|stopped]
-        [--split-size BYTES] [--split-duration S]
-        [-m MODE] [-e ENDPOINT]… [-l ENDPOINT]… [-c FILE] [--cfg KEY:VALUE]… [--net NAME]
+    python -m bintrack.services.recorder --out FILE.mcap [--until eos|stopped] [--split-size BYTES]
+        [--split-duration S] [bus options]
 
 The file is MCAP (:mod:`bintrack.live.recording` says why and how); the chunked writer leaves a
 readable prefix if the recorder dies; a stop by SIGINT/SIGTERM finalises the file.
@@ -83,7 +82,6 @@ class Recorder(Service):
         self.upstream = UpstreamDone(UPSTREAM)
         self.eos: float | None = None
         self.last_tracks = float("-inf")  # event time of the newest track set recorded
-        self.gone: set[tuple[str, str]] = set()  # services that went away
         self._changed = asyncio.Event()
 
     async def setup(self) -> None:
@@ -135,13 +133,8 @@ class Recorder(Service):
             log.info("recorder: %d track sets published during the outage fetched from the base station", fetched)
 
     def _on_presence(self, parsed: ParsedKey, present: bool) -> None:
-        if parsed.kind != "alive":
-            return
         self.upstream.on_presence(parsed, present)
-        entry = (parsed.service, parsed.instance)
-        if present and entry in self.gone:  # back after a restart or a router outage
-            self.filter.service_back()
-        (self.gone.discard if present else self.gone.add)(entry)
+        self.filter.on_presence(parsed, present)
         self._changed.set()
 
     def _on_sample(self, sample: zenoh.Sample) -> None:

@@ -33,10 +33,11 @@ import zenoh
 
 from bintrack.argtypes import positive_float
 from bintrack.live.parent_watch import PARENT_ENV
+from bintrack.live.presence import Presence
 from bintrack.live.session_options import DEFAULT_ENDPOINT, STATE_DIR_OPTION, router_config
 from bintrack.errors import CommandError
 from bintrack.formats import DEPLOYMENT_FILE, open_dataset, write_deployment
-from bintrack.keys import Keys, parse_key
+from bintrack.keys import Keys, ParsedKey, parse_key
 from bintrack.messages import Clock, MessageError, decode
 from bintrack.live.stack import ServiceCommand, region_stack_commands, stack_commands
 from bintrack.regions import grid_areas, grid_shape
@@ -101,12 +102,9 @@ class Monitor:
     foreign: set[str] = field(default_factory=set)  # alive/<service>/<id> keys of another stack
     lock: threading.Lock = field(default_factory=threading.Lock)
 
-    def on_alive(self, sample: zenoh.Sample) -> None:
-        try:
-            parsed = parse_key(str(sample.key_expr))
-        except ValueError:
-            return
-        if sample.kind == zenoh.SampleKind.PUT and parsed.instance not in self.ours:
+    def on_presence(self, parsed: ParsedKey, present: bool) -> None:
+        """A service's token came or went (a Presence listener, on a Zenoh thread)."""
+        if parsed.kind == "alive" and present and parsed.instance not in self.ours:
             with self.lock:
                 self.foreign.add(f"{parsed.service}/{parsed.instance}")
 
@@ -318,8 +316,10 @@ def run(args: argparse.Namespace) -> int:
         state_dir.cleanup()
         raise CommandError(f"another stack of network {net} is alive on {args.listen}: {', '.join(foreign)}; "
                            "stop it first, or use another --listen or --net")
-    entities = [router.declare_subscriber(keys.all(), monitor.on_sample),
-                router.liveliness().declare_subscriber(keys.alive(), monitor.on_alive)]
+    presence = Presence(keys)
+    presence.listen(monitor.on_presence)
+    presence.declare(router, lambda handler: handler)
+    entities = [router.declare_subscriber(keys.all(), monitor.on_sample), presence]
     env = {**os.environ, PARENT_ENV: str(os.getpid())}
     group: int | None = None
     stopped_by: Stopped | None = None

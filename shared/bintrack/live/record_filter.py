@@ -43,6 +43,7 @@ class RecordFilter:
         self.recent: dict[str, deque[bytes]] = {}
         self.resent_dropped = 0  # raw samples a restarted replay sent again that were already recorded
         self.dedupe_left = 0  # result messages still checked for duplicates after a return
+        self.gone: set[tuple[str, str]] = set()  # services whose tokens went
         self.last_t = 0.0  # event time of the newest message recorded
         self.gap_from: float | None = None  # after a restart: event time up to which the file was kept
 
@@ -59,9 +60,15 @@ class RecordFilter:
                         t, self.gap_from, path)
             self.gap_from = None
 
-    def service_back(self) -> None:
-        """An upstream service came back (restart, router): what it sends again is recorded once."""
-        self.dedupe_left = DEDUPE_AFTER_RETURN
+    def on_presence(self, parsed: ParsedKey, present: bool) -> None:
+        """A service's token came or went: one that comes back (a restart, a router outage) may
+        send again what it sent before, which is then recorded once."""
+        if parsed.kind != "alive":
+            return
+        entry = (parsed.service, parsed.instance)
+        if present and entry in self.gone:
+            self.dedupe_left = DEDUPE_AFTER_RETURN
+        (self.gone.discard if present else self.gone.add)(entry)
 
     def kept(self, key: str, payload: bytes) -> None:
         """``payload`` on ``key`` is in the file (recorded, or fetched after a loss)."""
