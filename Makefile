@@ -17,8 +17,9 @@ $(STAMP): pyproject.toml
 	@$(PIP) -e '.[test]'
 	@touch $(STAMP)
 
+DEMO_ARGS ?=
 demo: $(STAMP)
-	@$(BINTRACK) demo
+	@$(BINTRACK) demo $(DEMO_ARGS)
 
 # One worker per core (pytest-xdist), a test file per worker: the live tests mostly wait on
 # services and routers, so two files at once on 2 cores halve the time.

@@ -92,7 +92,7 @@ def main() -> int:
     port = free_port()
     up = subprocess.Popen([sys.executable, "-m", "bintrack.cli", "up", str(DATASET), "--tracker", "mcmcda",
                            "--speed", str(args.speed), "--loop", "--listen", f"tcp/127.0.0.1:{free_port()}",
-                           "--view-port", str(port), "--progress-interval", "60"], cwd=REPO)
+                           "--map-port", str(port), "--progress-interval", "60"], cwd=REPO)
     samples: dict[str, list[tuple[float, float]]] = {"view": [], "basestation": []}
     try:
         deadline = time.monotonic() + 60

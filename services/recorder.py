@@ -4,7 +4,9 @@
         [--split-duration S] [bus options]
 
 The file is MCAP (:mod:`bintrack.live.recording` says why and how); the chunked writer leaves a
-readable prefix if the recorder dies; a stop by SIGINT/SIGTERM finalises the file.
+readable prefix if the recorder dies; a stop by SIGINT/SIGTERM finalises the file. Foxglove does
+not decode msgpack: with ``--foxglove`` each finished file gets a copy beside it that Foxglove
+opens (``FILE.foxglove.mcap``, as ``bintrack export --foxglove`` writes it).
 
 It waits for the ``deployment`` queryable and stores the deployment, subscribes to
 ``bintrack/<net>/**`` and records every valid message but ``control/progress/**``, with its
@@ -36,6 +38,8 @@ from bintrack.live.recording_files import RecordingFiles
 from bintrack.live.service import Service, service_main
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.live.track_history import fetch_tracks_after
+from bintrack.live.foxglove_export import export_foxglove
+from bintrack.live.recording import open_recording
 
 log = logging.getLogger("bintrack")
 
@@ -43,7 +47,7 @@ UPSTREAM = ("sensor_agent", "peer_agent", "basestation", "merge")
 WAIT_LOG_INTERVAL = 5.0  # s of wall clock between "still waiting" lines
 
 
-def add_arguments(parser: argparse.ArgumentParser, until_default: str = "eos") -> None:
+def add_arguments(parser: argparse.ArgumentParser, until_default: str = "eos", net_default: str | None = "default") -> None:
     parser.add_argument("--out", required=True, metavar="FILE.mcap", help="the recording to write (overwritten)")
     parser.add_argument("--until", choices=("eos", "stopped"), default=until_default,
                         help="finalise and exit at the first end of stream once the services upstream are done "
@@ -53,9 +57,25 @@ def add_arguments(parser: argparse.ArgumentParser, until_default: str = "eos") -
                         "(FILE.mcap, then FILE_1.mcap, FILE_2.mcap, …; default: one file)")
     parser.add_argument("--split-duration", type=positive_float, metavar="S",
                         help="start a new file once this one spans this much event time, s (as --split-size)")
+    parser.add_argument("--foxglove", action="store_true",
+                        help="as each file is finalised, also write FILE.foxglove.mcap beside it: every message as "
+                        "JSON and the scene as foxglove.SceneUpdate, the schemas `up --foxglove` serves, which "
+                        "Foxglove opens directly")
     parser.add_argument("--id", help="instance id (default: host-pid)")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    add_bus_arguments(parser)
+    add_bus_arguments(parser, net_default=net_default)
+
+
+def foxglove_path(path: Path | str) -> Path:
+    """Where ``--foxglove`` writes Foxglove's copy of the recording ``path``: FILE.foxglove.mcap."""
+    return Path(path).with_suffix(".foxglove.mcap")
+
+
+def write_foxglove_copy(path: Path | str) -> None:
+    """Foxglove's copy of the finished recording ``path`` beside it."""
+    copy = foxglove_path(path)
+    export_foxglove(open_recording(path), copy)
+    log.info("recorder: Foxglove's copy in %s", copy)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -91,7 +111,8 @@ class Recorder(Service):
         checkpoint = self.checkpoints.load(RecorderCheckpoint)
         self.files = files = RecordingFiles(self.args.out, deployment, self.args.net,
                                             checkpoint.part if checkpoint is not None else 0,
-                                            self.args.split_size, self.args.split_duration)
+                                            self.args.split_size, self.args.split_duration,
+                                            on_finalised=write_foxglove_copy if self.args.foxglove else None)
         restarted = checkpoint is not None and Path(files.path).exists()
         if restarted:  # keep what the previous instance recorded: it is copied into the new file
             aside = Path(files.path + ".interrupted")

@@ -18,13 +18,14 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import socket
 import sys
 import time
 from collections import Counter
 
 import zenoh
 
-from bintrack.argtypes import positive_float
+from bintrack.argtypes import port_number, positive_float
 from bintrack.live.service import Service, service_main
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.errors import CommandError
@@ -32,7 +33,8 @@ from bintrack.keys import parse_key
 from bintrack.messages import MessageError, TrackSet, decode
 from bintrack.live.recording import KIND_TYPES
 from bintrack.view.map_messages import DRAWN_KINDS, message_item
-from bintrack.view.map_server import DEFAULT_BIND, DEFAULT_PORT, MapHub, make_app, page_url, start_site
+from bintrack.view.map_server import (DEFAULT_BIND, DEFAULT_PORT, MapHub, listening_socket, make_app, page_url,
+                                      served_line, start_site)
 from bintrack.view.map_state import DEFAULT_TAIL, MapState
 
 log = logging.getLogger("bintrack")
@@ -41,21 +43,13 @@ STATUS_PERIOD = 1.0   # s of wall clock between status lines to the pages
 RATE_KINDS = ("raw", "transition", "estimate", "fusion_reports", "tracks")
 
 
-def port_number(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
-    if not 0 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"a port is 0..65535, got {value}")
-    return value
-
-
 def add_web_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=port_number, default=DEFAULT_PORT,
-                        help="HTTP port of the page (default: %(default)s; 0 picks a free one)")
+                        help="HTTP port of the page (default: %(default)s; a free one if that is taken, and 0 "
+                        "always picks a free one)")
     parser.add_argument("--bind", default=DEFAULT_BIND, metavar="ADDRESS",
                         help="address to serve on (default: %(default)s, this machine only)")
+    parser.add_argument("--socket-fd", type=int, metavar="FD", help=argparse.SUPPRESS)  # a listening socket from `up`
     parser.add_argument("--tail", type=positive_float, default=DEFAULT_TAIL, metavar="S",
                         help="event time drawn behind each track and truth target, s (default: %(default)s)")
 
@@ -68,13 +62,15 @@ class View(Service):
         self.hub.on_page = self.complete_picture
         self.counts: Counter = Counter()
         try:
-            self.runner = await start_site(make_app(self.hub), self.args.bind, self.args.port)
+            if self.args.socket_fd is not None:   # bound by `bintrack up`, which keeps the port across restarts
+                sock = socket.socket(fileno=self.args.socket_fd)
+            else:
+                sock = listening_socket(self.args.bind, self.args.port)
+            self.runner = await start_site(make_app(self.hub), sock)
         except OSError as exc:
             raise CommandError(str(exc)) from None
-        port = self.runner.addresses[0][1]
-        self.url = page_url(self.args.bind, port)
-        log.info("view: the map is on %s", self.url)
-        print(f"view: map on {self.url}", file=sys.stderr, flush=True)
+        self.url = page_url(self.args.bind, sock.getsockname()[1])
+        print(served_line("view", self.args.bind, self.args.port, sock), file=sys.stderr, flush=True)
         self.subscribe(self.keys.all(), self.on_sample)
         self.services: set[tuple[str, str]] = set()
         self.follow_presence(self.on_presence)

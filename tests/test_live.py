@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import random
 import subprocess
 import sys
@@ -13,6 +14,7 @@ import yaml
 import zenoh
 
 from bintrack.cli import main as cli
+from bintrack.cli import up_command
 from bintrack.live.session_options import client_config, router_config
 from bintrack.live.control_guard import control_attachment
 from bintrack.formats import (
@@ -205,13 +207,20 @@ def test_transitions_in_shuffled_order_within_the_lateness_bound(tmp_path, zenoh
 
 
 def test_compose_runs_the_commands_bintrack_up_runs():
+    """docker-compose.yml is `bintrack up DIR --tracker mcmcda --loop --record … --foxglove` (mcmcda
+    on the three-person grid), each service with a checkpoint under its own name."""
     compose = yaml.safe_load((REPO / "docker-compose.yml").read_text())["services"]
-    expected = stack_commands(tracker="equal-weight", endpoint="tcp/router:7447", net="darpa-grid",
-                              source="/data/datasets/darpa-grid-3", speed=1, loop=True,
-                              record="/data/out/recording.mcap", view_port=8080, view_bind="0.0.0.0",
-                              state_dir="/data/state")
+    parser = argparse.ArgumentParser()
+    up_command.add_arguments(parser)
+    args = parser.parse_args(["/data/datasets/darpa-grid-3", "--tracker", "mcmcda", "--speed", "1", "--loop",
+                              "--record", "/data/out/recording.mcap", "--listen", "tcp/router:7447",
+                              "--net", "darpa-grid", "--map-bind", "0.0.0.0", "--foxglove"])
+    expected = up_command.planned_stack(args, "darpa-grid", 8080, state_dir="/data/state")
+    assert {c.name for c in expected} | {"router"} == set(compose)
     for command in expected:
         assert compose[command.name]["command"] == [command.module, *command.args], command.name
+    assert "--tracker" in compose["basestation"]["command"]
+    assert compose["basestation"]["command"][compose["basestation"]["command"].index("--tracker") + 1] == "mcmcda"
 
 
 @pytest.mark.parametrize(

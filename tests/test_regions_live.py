@@ -127,7 +127,7 @@ def test_up_with_regions_runs_a_router_and_a_base_station_per_region_and_merges(
     the recorded ``tracks`` are the offline ``bintrack track --regions`` rows."""
     recording = tmp_path / "run.mcap"
     result = subprocess.run([sys.executable, "-m", "bintrack.cli", "up", str(field / "field"), "--tracker", "mcmcda",
-                             "--regions", "4", "--speed", "0", "--exit-at-end", "--no-view", "--record", str(recording),
+                             "--regions", "4", "--speed", "0", "--exit-at-end", "--no-map", "--record", str(recording),
                              "--listen", f"tcp/127.0.0.1:{free_port()}"],
                             capture_output=True, text=True, cwd=REPO, timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
@@ -274,7 +274,7 @@ def test_up_secure_with_regions_gives_the_offline_rows_and_no_link_falls_to_defa
     recording = tmp_path / "secure-regions.mcap"
     up = subprocess.run([sys.executable, "-m", "bintrack.cli", "up", str(field / "field"), "--tracker", "mcmcda",
                          "--regions", "4", "--secure", "--certs", str(certs), "--listen", f"tls/127.0.0.1:{free_port()}",
-                         "--speed", "0", "--exit-at-end", "--no-view", "--record", str(recording)],
+                         "--speed", "0", "--exit-at-end", "--no-map", "--record", str(recording)],
                         capture_output=True, text=True, cwd=REPO, env=env, timeout=300)
     assert up.returncode == 0, up.stderr[-3000:]
     for i, region in enumerate(REGIONS):

@@ -193,7 +193,7 @@ def test_the_secure_stack_gives_the_offline_rows(certs, tmp_path):
     recording = tmp_path / "secure.mcap"
     up = bintrack("up", str(folder), "--speed", "0", "--tracker", "equal-weight", "--record", str(recording),
                   "--exit-at-end", "--secure", "--certs", str(certs), "--listen", f"tls/127.0.0.1:{free_port()}",
-                  "--view-port", str(free_port()))  # the map runs as the viewer role
+                  "--map-port", str(free_port()))  # the map runs as the viewer role
     assert up.returncode == 0, up.stderr[-3000:]
     assert "bad payloads" not in up.stderr and "PRIVATE KEY" not in up.stderr
     offline = tmp_path / "offline.csv"
@@ -229,8 +229,9 @@ def test_the_compose_override_runs_every_service_of_the_base_file_under_its_role
         tls = [{"tcp/router:7447": "tls/router:7447"}.get(a, a) for a in base[name]["command"]]
         assert service["command"] == list(awaiting_token_holders(tls)) + role, name
         health = [{"tcp/router:7447": "tls/router:7447"}.get(a, a) for a in base[name]["healthcheck"]["test"]]
-        if role_of(name) == "viewer":  # no liveliness token to probe: the page answers instead
-            assert "state.json" in " ".join(service["healthcheck"]["test"]), name
+        if role_of(name) == "viewer":  # no liveliness token to probe: the page (or the WebSocket port) answers
+            probe = " ".join(service["healthcheck"]["test"])
+            assert "state.json" in probe or "create_connection(('127.0.0.1', 8765)" in probe, name
         else:
             assert service["healthcheck"]["test"] == health + role, name
         config = zenoh.Config.from_file(str(REPO / "deploy" / "secure" / f"{role_of(name)}.json5"))

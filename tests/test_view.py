@@ -162,7 +162,7 @@ def live_run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("view-live")
     port = free_port()
     run = Process("up", str(DARPA3), "--tracker", "mcmcda", "--speed", "3", "--record", str(folder / "run.mcap"),
-                  "--exit-at-end", "--listen", f"tcp/127.0.0.1:{free_port()}", "--view-port", str(port))
+                  "--exit-at-end", "--listen", f"tcp/127.0.0.1:{free_port()}", "--map-port", str(port))
     run.url = run.wait_for("view: map on").split("map on ", 1)[1].strip()
     run.recording = folder / "run.mcap"
     yield run
@@ -187,7 +187,14 @@ def test_the_live_page_draws_the_deployment_the_tracks_and_the_detecting_sensors
     page.wait_for_function("bintrack.trackLabels().length >= 2 && bintrack.litSensors().length >= 1", timeout=90_000)
     labels = page.evaluate("bintrack.trackLabels()")
     lit = page.evaluate("bintrack.litSensors()")
+    page.wait_for_function("bintrack.S.producing.has('tracks')")
     status = page.inner_text("#status")
+    page.wait_for_function("bintrack.legendEntries().includes('track')")
+    legend = page.evaluate("bintrack.legendEntries()")
+    colours = page.evaluate("bintrack.trackColours()")
+    detecting = page.evaluate("bintrack.detectingColour()")
+    ranges_shown = page.evaluate("bintrack.rangesShown()")
+    scale = page.evaluate("bintrack.scaleBar()")
     page.evaluate("bintrack.resetFrames()")
     page.wait_for_function("bintrack.frameIntervals().length >= 120", timeout=60_000)
     intervals = sorted(page.evaluate("bintrack.frameIntervals()"))
@@ -202,6 +209,15 @@ def test_the_live_page_draws_the_deployment_the_tracks_and_the_detecting_sensors
     recording = open_recording(finished(live_run))
     assert sensors == len(recording.deployment.sensors) == 144
     assert "live · darpa-grid" in status and "basestation" in status
+    # Only what mcmcda on a disk grid produces: no estimates figure, no motion, sector, laser or velocity layer.
+    assert "estimates" not in status and "tracks" in status
+    assert set(legend) <= {"node", "detecting", "report", "truth", "track", "more"}, legend
+    # The legend's track colours are the drawn ones, and none is the colour of "detecting".
+    assert colours and all(c["legend"] == c["dot"] == c["label"] for c in colours), colours
+    assert detecting is None or detecting not in {c["dot"] for c in colours}
+    # 144 disks of 8 m on a 5 m grid overlap ~7 deep: their circles are off; a scale bar in metres.
+    assert not ranges_shown
+    assert scale["text"].endswith(" m") and scale["px"] > 20
     # The tracks on the page are a scan the base station published: same ids, same positions.
     published = {message.t: message for _, message in recording.messages({"tracks"})}
     (t,) = {label["t"] for label in labels}
@@ -233,7 +249,7 @@ def test_the_slider_seeks_a_recording_and_the_page_shows_that_times_tracks(brows
     i, scan = next((i, s) for i, s in enumerate(scans) if i >= middle and len(s.tracks) >= 2)
     later = scans[i + 1].t
     seek = scan.t + (later - scan.t) / 2      # between this scan and the next one
-    view = Process("view", str(path), "--port", str(free_port()))
+    view = Process("view", str(path), "--map-port", str(free_port()))
     try:
         url = view.wait_for("view: map on").split("map on ", 1)[1].split()[0]
         page = browser.new_page(viewport={"width": 1100, "height": 800})
@@ -270,8 +286,9 @@ def test_the_slider_seeks_a_recording_and_the_page_shows_that_times_tracks(brows
         assert view.stop() == 0, view.log
 
 
-def test_view_on_a_taken_port_fails_with_one_line(tmp_path):
+def test_view_on_a_taken_port_serves_on_a_free_one_and_says_so_once(tmp_path):
     import socket
+    import urllib.request
 
     from bintrack.live.recording import RecordingWriter
 
@@ -283,16 +300,22 @@ def test_view_on_a_taken_port_fails_with_one_line(tmp_path):
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        result = subprocess.run([sys.executable, "-m", "bintrack.cli", "view", str(recording), "--port", str(port)],
-                                capture_output=True, text=True, cwd=REPO, timeout=60)
-    assert result.returncode == 2
-    assert result.stderr.strip().count("\n") == 0 and f"cannot serve the map on 127.0.0.1:{port}" in result.stderr
+        view = Process("view", str(recording), "--map-port", str(port))
+        try:
+            line = view.wait_for("view: map on")
+            url = line.split("map on ", 1)[1].split()[0]
+            assert f"(port {port} was taken)" in line and url != f"http://127.0.0.1:{port}/"
+            with urllib.request.urlopen(url + "state.json", timeout=HUNG) as response:
+                assert json.load(response)["deployment"]["name"] == "darpa-grid"
+        finally:
+            assert view.stop() == 0, view.log
+    assert sum("map on" in line for line in view.lines) == 1
 
 
 def test_view_of_a_file_that_is_not_a_recording_fails_with_one_line(tmp_path):
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"not an mcap file")
-    result = subprocess.run([sys.executable, "-m", "bintrack.cli", "view", str(bad), "--port", str(free_port())],
+    result = subprocess.run([sys.executable, "-m", "bintrack.cli", "view", str(bad), "--map-port", str(free_port())],
                             capture_output=True, text=True, cwd=REPO, timeout=60)
     assert result.returncode == 2
     assert result.stderr.strip().count("\n") == 0 and "not an MCAP recording" in result.stderr
@@ -305,7 +328,7 @@ def test_the_page_says_when_the_deployment_the_stack_the_bus_or_the_view_server_
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = zenoh.open(router_config([endpoint]))
-    view = Process("view", "--net", "gone", "--port", str(free_port()), "-e", endpoint)
+    view = Process("view", "--net", "gone", "--map-port", str(free_port()), "-e", endpoint)
     session = None
     try:
         url = view.wait_for("view: map on").split("map on ", 1)[1].strip()
@@ -353,7 +376,7 @@ def test_a_page_opened_mid_run_gets_the_deployment_and_the_latest_tracks_from_th
                    {"track": 4, "x": 10.0, "y": 20.0, "vx": 1.0, "vy": 0.0}, {"track": 9, "x": 30.0, "y": 5.0}]))}
     queryables = [session.declare_queryable(key, lambda query, key=key: query.reply(key, answers[key]))
                   for key in answers]
-    view = Process("view", "--net", "mid", "--port", str(free_port()), "-e", endpoint)
+    view = Process("view", "--net", "mid", "--map-port", str(free_port()), "-e", endpoint)
     try:
         url = view.wait_for("view: map on").split("map on ", 1)[1].strip()
         page = browser.new_page()

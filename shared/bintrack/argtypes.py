@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import sys
 from collections.abc import Callable
+from pathlib import Path
+
+from bintrack.errors import CommandError
 
 
 def non_negative_float(text: str) -> float:
@@ -51,3 +56,74 @@ def size_bytes(text: str) -> int:
     if value <= 0:
         raise argparse.ArgumentTypeError(f"not a positive size in bytes: {text!r} (e.g. 100M)")
     return value
+
+
+def port_number(text: str) -> int:
+    """A TCP port, 0..65535 (0: any free one)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is 0..65535, got {value}")
+    return value
+
+
+def output_folder(path: Path) -> Path:
+    """Create folder ``path`` (and its parents) for a command's output; CommandError (one line)
+    if it cannot be: a file in the way, no permission."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise CommandError(f"{path}: not a folder (a file is in the way)") from None
+    except OSError as exc:
+        raise CommandError(f"cannot create the folder {path}: {exc.strerror or exc}") from None
+    probe = path / f".bintrack-write-check-{os.getpid()}"
+    try:
+        probe.touch()
+        probe.unlink()
+    except OSError as exc:
+        raise CommandError(f"cannot write into {path}: {exc.strerror or exc}") from None
+    return path
+
+
+def output_file(path: Path | str, *, what: str = "") -> Path:
+    """Check that file ``path`` can be written (by opening it) before any work is done;
+    CommandError, one line "cannot write [what] PATH: why", if it is a folder, its folder is
+    missing or not a folder, or it cannot be written. ``what`` names the file, e.g. "plot"."""
+    path = Path(path)
+    name = f"{what} {path}" if what else str(path)
+    if path.is_dir():
+        raise CommandError(f"cannot write {name}: it is a folder; give a file name")
+    if not path.parent.is_dir():
+        why = "no such folder" if not path.parent.exists() else "not a folder"
+        raise CommandError(f"cannot write {name}: {path.parent}: {why}")
+    existed = path.exists()
+    try:
+        with open(path, "ab"):
+            pass
+    except OSError as exc:
+        raise CommandError(f"cannot write {name}: {exc.strerror or exc}") from None
+    if not existed:
+        path.unlink()
+    return path
+
+
+_warned: set[str] = set()
+
+
+def add_alias(parser: argparse.ArgumentParser, old: str, new: str, dest: str, *, flag_value: object = None,
+              **kwargs) -> None:
+    """``old``, an earlier name of option ``new``: still accepted (into ``dest``), hidden from
+    ``--help``, and its first use in this process prints one warning line to stderr.
+    ``flag_value``: the value a flag without argument stores (e.g. False for ``--no-view``)."""
+
+    class Alias(argparse.Action):
+        def __call__(self, parser, namespace, values, option_string=None):
+            if old not in _warned:
+                _warned.add(old)
+                print(f"{parser.prog}: warning: {old} is now {new}", file=sys.stderr)
+            setattr(namespace, self.dest, flag_value if self.nargs == 0 else values)
+
+    parser.add_argument(old, dest=dest, action=Alias, nargs=0 if flag_value is not None else None,
+                        default=argparse.SUPPRESS, help=argparse.SUPPRESS, **kwargs)

@@ -23,6 +23,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from bintrack.argtypes import output_folder
 from bintrack.errors import CommandError
 from bintrack.live.stack import MAX_REGIONS, region_address
 
@@ -153,6 +154,9 @@ def run(args: argparse.Namespace) -> int:
     router_names = tuple(args.router_name)
     for name in router_names:
         host_name(name)  # refused before anything is written
+    if args.ca and not (Path(args.ca) / "ca.pem").is_file():
+        raise CommandError(f"--ca {args.ca}: no ca.pem there (make one with `bintrack certs --out DIR`)")
+    output_folder(Path(args.out))
     written = make_certs(Path(args.out), roles, args.days, Path(args.ca) if args.ca else None, router_names)
     print(f"certs: wrote {len(written)} files into {args.out} (keys mode 0600): {', '.join(p.name for p in written)}")
     return 0

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from bintrack.argtypes import positive_float
+from bintrack.argtypes import output_file, positive_float
 from bintrack.errors import CommandError
 from bintrack.evaluation.eval_report import DEFAULT_GOSPA_C, evaluate
 from bintrack.formats import open_dataset
@@ -22,6 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     dataset = open_dataset(args.dir)
+    if args.plot:
+        output_file(args.plot, what="plot")
     evaluation = evaluate(dataset, args.result, gospa_c=args.gospa_c)
     if args.json:
         print(json.dumps(evaluation.as_dict()))

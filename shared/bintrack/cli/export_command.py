@@ -20,6 +20,7 @@ import math
 import sys
 from pathlib import Path
 
+from bintrack.argtypes import output_file
 from bintrack.errors import CommandError
 from bintrack.formats import ObjectRow, TrackRow, write_objects, write_tracks
 from bintrack.pipeline import output_objects, output_rows
@@ -63,6 +64,8 @@ def run(args: argparse.Namespace) -> int:
     elif args.what is None or args.out is None:
         raise CommandError("give --what and --out (or --foxglove OUT.mcap)")
     recording = open_recording(args.recording)
+    if args.foxglove is not None or args.out != "-":
+        output_file(args.foxglove if args.foxglove is not None else args.out)
     if args.foxglove is not None:
         from bintrack.live.foxglove_export import export_foxglove
 

@@ -53,17 +53,26 @@ def build_parser(chosen: str | None = None) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     chosen = next((a for a in argv if not a.startswith("-")), None)
+    if not argv:   # `bintrack` alone: what it can do
+        build_parser().print_help()
+        return 0
     args = build_parser(chosen).parse_args(argv)
     try:
         return int(args._run(args) or 0)
     except (FormatError, CommandError) as exc:
         print(f"bintrack {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        return 0
+    except OSError as exc:
+        if exc.filename is None:
+            raise
+        # a path the checks before the work did not catch: still one line, not a traceback
+        print(f"bintrack {args.command}: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"bintrack {args.command}: interrupted", file=sys.stderr)
         return 130
-    except BrokenPipeError:
-        return 0
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
+from bintrack.argtypes import output_folder
 from bintrack.errors import CommandError
 from bintrack.formats import write_dataset
 from bintrack.regions import grid_areas, grid_shape
@@ -81,13 +82,11 @@ def run(args: argparse.Namespace) -> int:
     for name, value in options.items():
         if isinstance(value, float) and not math.isfinite(value):
             raise CommandError(f"{option_flag(name)} must be a finite number, got {value}")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise CommandError(f"--out {out} exists and is not a folder")
     try:
         scenario = build_scenario(args.scenario, args.seed, **options)
     except ScenarioError as exc:
         raise CommandError(str(exc)) from None
+    out = output_folder(Path(args.out))  # options first: a refused run leaves no folder behind
     total = len(scenario.sensors)
     progress = Progress("simulate: sensors", total, enabled=None if total >= PROGRESS_MIN_SENSORS else False)
     result = simulate_scenario(scenario, args.seed, lambda done, _: progress.update(done, force=done == total))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from bintrack.argtypes import output_file
 from bintrack.argtypes import positive_float
 from bintrack.errors import CommandError
 from bintrack.formats import open_dataset, write_objects, write_tracks
@@ -13,7 +14,8 @@ from bintrack.pipeline import output_objects, output_rows, run_regions, run_trac
 from bintrack.regions import RegionMap
 from bintrack.trackers.multi.region_merge import RegionMerge
 from bintrack.cli.progress import Progress
-from bintrack.trackers import OBJECT_TRACKERS, TRACKER_NAMES, make_tracker
+from bintrack.trackers.multi.mcmcda import MCMCDAConfig
+from bintrack.trackers import OBJECT_TRACKERS, TRACKER_NAMES, make_tracker, sensor_mismatch
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_options
 
 
@@ -22,8 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tracker", required=True, choices=TRACKER_NAMES, help="tracker name")
     parser.add_argument("--out", help="tracks.csv (objects.csv for adaptive-basis) to write "
                         "(default: tracks.csv or objects.csv; '-' for stdout)")
-    parser.add_argument("--speed", type=positive_float, help="target speed, units/s, for distance-weight and line-fit, and mcmcda's fastest target "
-                        "(default: estimated from detection durations)")
+    parser.add_argument("--speed", type=positive_float, metavar="V",
+                        help="target speed, units/s: for distance-weight and line-fit (default: estimated from "
+                        f"detection durations); mcmcda's fastest target (default: {MCMCDAConfig.max_speed:g} m/s in "
+                        "the deployment's units); motion-rw's first guess")
     add_tracker_arguments(parser)
     parser.add_argument("--beams", metavar="FILE.csv",
                         help="adaptive-basis: also write the estimated beams a·x + b·y = 1 (sensor,a,b; units⁻¹)")
@@ -38,12 +42,17 @@ def run(args: argparse.Namespace) -> int:
     if beams is not None and args.tracker not in OBJECT_TRACKERS:
         raise CommandError(f"--beams: tracker {args.tracker} does not estimate beams (adaptive-basis does)")
     dataset = open_dataset(args.dataset)
+    if args.out not in (None, "-"):
+        output_file(args.out)
     if getattr(args, "regions", False):
         return run_regions_command(args, dataset)
     try:
         tracker = make_tracker(args.tracker, dataset.deployment, tracker_options(args))
     except ValueError as exc:
         raise CommandError(str(exc)) from None
+    mismatch = sensor_mismatch(args.tracker, dataset.deployment)
+    if mismatch is not None:
+        print(f"bintrack track: warning: {mismatch}", file=sys.stderr)
     objects = args.tracker in OBJECT_TRACKERS
     out = args.out or ("objects.csv" if objects else "tracks.csv")
     progress = Progress(f"track {args.tracker}", enabled=args.progress)

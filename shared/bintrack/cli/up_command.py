@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -31,7 +32,7 @@ from pathlib import Path
 
 import zenoh
 
-from bintrack.argtypes import positive_float
+from bintrack.argtypes import add_alias, output_file, port_number, positive_float
 from bintrack.live.parent_watch import PARENT_ENV
 from bintrack.live.presence import Presence
 from bintrack.live.session_options import DEFAULT_ENDPOINT, STATE_DIR_OPTION, router_config
@@ -43,15 +44,19 @@ from bintrack.live.stack import ServiceCommand, region_stack_commands, stack_com
 from bintrack.regions import grid_areas, grid_shape
 from bintrack.live.secure_profile import secure_up
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_arguments, tracker_options
-from bintrack.trackers import TRACKER_NAMES, check_options as make_tracker_check
-from bintrack.view.map_server import page_url
+from bintrack.trackers import TRACKER_NAMES, check_options as make_tracker_check, sensor_mismatch
+from bintrack.view.map_server import DEFAULT_BIND, DEFAULT_PORT, listening_socket
 
 SHOWN = (("raw", "events"), ("transition", "transitions"), ("estimate", "estimates"), ("tracks", "tracks"))
 STOP_TIMEOUT = 15.0
 BACKOFF_FIRST, BACKOFF_MAX = 0.5, 30.0  # s between a death and the restart
 STABLE_RUN = 30.0  # s a service must run for its backoff to start again from BACKOFF_FIRST
 MAX_QUICK_FAILURES = 8  # deaths in a row, each within STABLE_RUN of its start, before up gives up
+FOXGLOVE_PORT = 8765  # Foxglove's default WebSocket port
 FOREIGN_CHECK = 1.0  # s to wait for liveliness replies of another stack before starting
+# the roles that make a stack: another instance of one of them on the network is another stack
+# (observers — a recorder, a map, the Foxglove bridge started by hand — may join)
+STACK_ROLES = frozenset({"replay", "sensor_agent", "peer_agent", "basestation", "estimate_relay", "merge"})
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -69,12 +74,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--listen", default=DEFAULT_ENDPOINT, metavar="ENDPOINT",
                         help="where the embedded router listens (default: %(default)s)")
     parser.add_argument("--net", help="network name (default: the dataset's deployment name, else 'default')")
-    parser.add_argument("--no-view", dest="view", action="store_false",
-                        help="do not start the map (the view service)")
-    parser.add_argument("--view-port", type=int, default=8080, metavar="PORT",
-                        help="HTTP port of the map (default: %(default)s)")
-    parser.add_argument("--view-bind", default="127.0.0.1", metavar="ADDRESS",
-                        help="address the map is served on (default: %(default)s, this machine only)")
+    add_map_arguments(parser)
+    parser.add_argument("--foxglove", type=port_number, nargs="?", const=FOXGLOVE_PORT, metavar="PORT",
+                        help=f"also serve the stack to Foxglove (its WebSocket protocol) on PORT (default {FOXGLOVE_PORT}, "
+                        "or a free one if that is taken), on --map-bind's address")
     parser.add_argument("--secure", action="store_true",
                         help="mutual TLS and per-role access control (deploy/secure/); --listen must be a tls/ endpoint "
                         "(with --regions, the region routers too listen on tls/ and show each other the router "
@@ -88,6 +91,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "a grid of N")
     parser.add_argument("--progress-interval", type=positive_float, default=1.0, metavar="S",
                         help="seconds between progress lines (default: %(default)s)")
+
+
+def add_map_arguments(parser: argparse.ArgumentParser) -> None:
+    """The map's options, as ``up``, ``demo`` and ``view`` name them."""
+    parser.add_argument("--no-map", dest="view", action="store_false", help="do not start the map (the view service)")
+    add_alias(parser, "--no-view", "--no-map", "view", flag_value=False)
+    parser.add_argument("--map-port", dest="view_port", type=port_number, default=DEFAULT_PORT, metavar="PORT",
+                        help="HTTP port of the map (default: %(default)s, or a free one if that is taken)")
+    add_alias(parser, "--view-port", "--map-port", "view_port", type=port_number)
+    parser.add_argument("--map-bind", dest="view_bind", default=DEFAULT_BIND, metavar="ADDRESS",
+                        help="address the map is served on (default: %(default)s, this machine only)")
+    add_alias(parser, "--view-bind", "--map-bind", "view_bind")
+
+
+class RouterPortTaken(CommandError):
+    """The embedded router could not listen on its endpoint."""
 
 
 @dataclass
@@ -104,7 +123,7 @@ class Monitor:
 
     def on_presence(self, parsed: ParsedKey, present: bool) -> None:
         """A service's token came or went (a Presence listener, on a Zenoh thread)."""
-        if parsed.kind == "alive" and present and parsed.instance not in self.ours:
+        if parsed.kind == "alive" and present and parsed.instance not in self.ours and parsed.service in STACK_ROLES:
             with self.lock:
                 self.foreign.add(f"{parsed.service}/{parsed.instance}")
 
@@ -157,9 +176,11 @@ class Supervised:
     def name(self) -> str:
         return self.command.key
 
-    def start(self, env: dict[str, str], group: int | None) -> int:
-        """Start (or restart) the process in process group ``group`` (a new one if None); its pid."""
-        self.proc = subprocess.Popen(self.argv, env=env, process_group=0 if group is None else group)
+    def start(self, env: dict[str, str], group: int | None, pass_fds: tuple[int, ...] = ()) -> int:
+        """Start (or restart) the process in process group ``group`` (a new one if None), handing
+        it the open files ``pass_fds``; its pid."""
+        self.proc = subprocess.Popen(self.argv, env=env, process_group=0 if group is None else group,
+                                     pass_fds=pass_fds)
         self.started, self.due = time.monotonic(), None
         return self.proc.pid
 
@@ -181,9 +202,10 @@ def _status(code: int) -> str:
     return f"exited with status {code}"
 
 
-def _progress_line(now: Counter, before: Counter, dt: float, event_time: float | None) -> str:
+def _progress_line(now: Counter, before: Counter, dt: float, event_time: float | None,
+                   shown: tuple[tuple[str, str], ...] = SHOWN) -> str:
     parts = [f"t={event_time:9.2f} s" if event_time is not None else "t=        - s"]
-    for kind, label in SHOWN:
+    for kind, label in shown:
         rate = (now[kind] - before[kind]) / dt if dt > 0 else 0.0
         parts.append(f"{label} {now[kind]} ({rate:.0f}/s)")
     return "up: " + " | ".join(parts)
@@ -233,7 +255,7 @@ def _foreign_now(router: zenoh.Session, keys: Keys, ours: set[str]) -> list[str]
     for reply in router.liveliness().get(keys.alive(), timeout=FOREIGN_CHECK):
         if reply.ok is not None:
             parsed = parse_key(str(reply.ok.key_expr))
-            if parsed.instance not in ours:
+            if parsed.instance not in ours and parsed.service in STACK_ROLES:
                 found.append(f"{parsed.service}/{parsed.instance}")
     return sorted(found)
 
@@ -263,6 +285,31 @@ def _region_source(args: argparse.Namespace) -> tuple[tempfile.TemporaryDirector
     return folder, folder.name, [r.name for r in deployment.regions]
 
 
+def planned_stack(args: argparse.Namespace, net: str, view_port: int | None,
+                  state_dir: str | None = None) -> list[ServiceCommand]:
+    """The services ``up`` starts for ``args`` (one region), as :func:`stack_commands` builds
+    them; docker-compose.yml runs the same with ``state_dir`` (a test holds the two together)."""
+    options = replace(tracker_options(args), speed=None)  # --speed here is the replay's
+    return stack_commands(tracker=args.tracker, endpoint=args.listen, net=net, source=args.source,
+                          speed=args.speed, loop=args.loop, record=args.record, estimates=options.estimates,
+                          tracker_args=tracker_arguments(options), view_port=view_port,
+                          view_bind=getattr(args, "view_bind", DEFAULT_BIND), state_dir=state_dir,
+                          clock_period=args.clock_period, foxglove_port=getattr(args, "foxglove", None))
+
+
+def _map_socket(bind: str, port: int) -> socket.socket | None:
+    """The map's listening socket, bound here and kept open for the view (and its restarts): the
+    port asked for, else a free one. None, said in one line, if neither can be had: the stack then
+    runs without the map."""
+    try:
+        sock = listening_socket(bind, port)
+    except OSError as exc:
+        print(f"up: {exc}; the stack runs without the map", file=sys.stderr)
+        return None
+    sock.set_inheritable(True)
+    return sock
+
+
 def run(args: argparse.Namespace) -> int:
     if args.exit_at_end and args.source is None:
         raise CommandError("--exit-at-end needs a DIR to replay")
@@ -270,50 +317,70 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"--speed must be ≥ 0, got {args.speed}")
     if args.record is not None and not args.record.endswith(".mcap"):
         raise CommandError(f"--record {args.record}: a recording's name must end in .mcap")
+    if args.record is not None:
+        output_file(args.record)
     net = args.net or _source_net(args.source) or "default"
+    if args.source is not None and Path(args.source).suffix != ".mcap":
+        mismatch = sensor_mismatch(args.tracker, open_dataset(args.source).deployment)
+        if mismatch is not None:
+            print(f"up: warning: {mismatch}", file=sys.stderr)
     options = replace(tracker_options(args), speed=None)  # --speed here is the replay's
     try:
         make_tracker_check(args.tracker, options)
     except ValueError as exc:
         raise CommandError(str(exc)) from None
-    view_port = args.view_port if getattr(args, "view", False) else None
     view_bind = getattr(args, "view_bind", "127.0.0.1")
     regions_dir = None
-    if getattr(args, "regions", None) is not None:
+    with_regions = getattr(args, "regions", None) is not None
+    if with_regions:
         regions_dir, source, names = _region_source(args)
+    view_socket = _map_socket(view_bind, args.view_port) if getattr(args, "view", False) else None
+    view_port = args.view_port if view_socket is not None else None
+    if with_regions:
         try:
             commands = region_stack_commands(regions=names, endpoint=args.listen, net=net, source=source,
                                              speed=args.speed, loop=args.loop, record=args.record,
                                              tracker_args=tracker_arguments(options), view_port=view_port,
-                                             view_bind=view_bind, clock_period=args.clock_period)
+                                             view_bind=view_bind, clock_period=args.clock_period,
+                                             foxglove_port=args.foxglove)
         except ValueError as exc:
+            if view_socket is not None:
+                view_socket.close()
             raise CommandError(f"--regions: {exc}") from None
     else:
-        commands = stack_commands(tracker=args.tracker, endpoint=args.listen, net=net, source=args.source,
-                                  speed=args.speed, loop=args.loop, record=args.record, estimates=options.estimates,
-                                  tracker_args=tracker_arguments(options), view_port=view_port, view_bind=view_bind,
-                                  clock_period=args.clock_period)
+        commands = planned_stack(args, net, view_port)
     if args.secure:
-        commands, config = secure_up(commands, args.certs, args.listen)
+        try:
+            commands, config = secure_up(commands, args.certs, args.listen)
+        except CommandError:
+            if view_socket is not None:
+                view_socket.close()
+            raise
     else:
         config = router_config([args.listen])
     try:
         router = zenoh.open(config)
     except zenoh.ZError as exc:
-        raise CommandError(f"cannot start the router on {args.listen} ({str(exc).split(' at ')[0]}); "
+        if view_socket is not None:
+            view_socket.close()
+        raise RouterPortTaken(f"cannot start the router on {args.listen} ({str(exc).split(' at ')[0]}); "
                            "is another one running? choose another with --listen") from None
     keys = Keys(net)
     state_dir = tempfile.TemporaryDirectory(prefix="bintrack-up-")  # the services' checkpoints
     stack_id = f"up{os.getpid()}"
     supervised = {c.key: Supervised(c, c.argv(sys.executable) if c.name == "router" else
                                     [*c.argv(sys.executable), "--id", f"{stack_id}-{c.key}", STATE_DIR_OPTION,
-                                     state_dir.name])
+                                     state_dir.name, *(("--socket-fd", str(view_socket.fileno()))
+                                                       if c.name == "view" else ())])
                   for c in commands}
+    passed = {"view": (view_socket.fileno(),)} if view_socket is not None else {}
     monitor = Monitor(keys, ours={f"{stack_id}-{name}" for name in supervised})
     foreign = _foreign_now(router, keys, monitor.ours)
     if foreign:
         router.close()
         state_dir.cleanup()
+        if view_socket is not None:
+            view_socket.close()
         raise CommandError(f"another stack of network {net} is alive on {args.listen}: {', '.join(foreign)}; "
                            "stop it first, or use another --listen or --net")
     presence = Presence(keys)
@@ -325,15 +392,15 @@ def run(args: argparse.Namespace) -> int:
     stopped_by: Stopped | None = None
     failed: str | None = None
     ended_said = False
-    last_stage = "recorder" if args.record else "merge" if regions_dir is not None else "basestation"
+    # the figures this stack produces: peer estimates only where peer agents run
+    shown = tuple(item for item in SHOWN if item[0] != "estimate" or "peer_agent" in {c.name for c in commands})
+    last_stage = "recorder" if args.record else "merge" if with_regions else "basestation"
     handlers = {sig: signal.signal(sig, _raise_stopped) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
         for service in supervised.values():
-            pid = service.start(env, group)
+            pid = service.start(env, group, passed.get(service.command.name, ()))
             group = pid if group is None else group
         print(f"up: router on {args.listen}, network {net}, services: {', '.join(supervised)}", file=sys.stderr)
-        if "view" in supervised:
-            print(f"up: map on {page_url(args.view_bind, args.view_port)}", file=sys.stderr, flush=True)
         before, t_before = Counter(), time.monotonic()
         while True:
             time.sleep(0.1)
@@ -344,7 +411,7 @@ def run(args: argparse.Namespace) -> int:
                 if service.due is not None:
                     if now >= service.due:
                         service.restarts += 1
-                        pid = service.start(env, group)
+                        pid = service.start(env, group, passed.get(service.command.name, ()))
                         print(f"up: {service.name} restarted (pid {pid}, restart {service.restarts})", file=sys.stderr)
                     continue
                 code = service.proc.poll()
@@ -364,18 +431,17 @@ def run(args: argparse.Namespace) -> int:
             if foreign:
                 failed = f"another stack of network {net} joined the bus: {', '.join(foreign)}"
             if failed:
-                if failed.startswith("view "):
-                    failed += f" (is port {args.view_port} taken? choose another with --view-port, or --no-view)"
                 break
             counts, event_time, done = monitor.snapshot()
             if now - t_before >= args.progress_interval:
                 if counts != before:
-                    print(_progress_line(counts, before, now - t_before, event_time), file=sys.stderr)
+                    print(_progress_line(counts, before, now - t_before, event_time, shown), file=sys.stderr)
                 before, t_before = counts, now
             finished = last_stage in done or (last_stage == "recorder" and supervised["recorder"].finished)
             if args.exit_at_end and finished:
                 if counts != before:
-                    print(_progress_line(counts, before, max(now - t_before, 1e-9), event_time), file=sys.stderr)
+                    print(_progress_line(counts, before, max(now - t_before, 1e-9), event_time, shown),
+                          file=sys.stderr)
                 print("up: the end of the replay has been processed; stopping", file=sys.stderr)
                 break
             if not ended_said and finished:
@@ -393,6 +459,8 @@ def run(args: argparse.Namespace) -> int:
             entity.undeclare()
         router.close()
         state_dir.cleanup()
+        if view_socket is not None:
+            view_socket.close()
         if regions_dir is not None:
             regions_dir.cleanup()
         for sig, handler in handlers.items():

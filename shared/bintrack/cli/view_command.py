@@ -1,27 +1,38 @@
-"""``bintrack view [RECORDING.mcap] [--net NAME] [--port 8080] [--bind 127.0.0.1] [bus options]``.
+"""``bintrack view [RECORDING.mcap] [--net NAME] [--map-port 8080] [--map-bind 127.0.0.1] [bus options]``.
 
 Without a recording: the view service (``python -m bintrack.services.view``), the live map of
-network ``--net`` on the bus. With one: the same page serving the recording, with a time
-slider, play/pause and speed; no bus needed.
+a network on the bus (``--net``, else the one network alive there, as ``bintrack watch``
+finds it). With one: the same page serving the recording, with a time slider, play/pause and
+speed; no bus needed.
 """
 
 from __future__ import annotations
 
 import argparse
 
+from bintrack.argtypes import add_alias, port_number, positive_float
 from bintrack.live.service import configure_logging
 from bintrack.live.session_options import add_bus_arguments
+from bintrack.view.map_server import DEFAULT_BIND, DEFAULT_PORT
+from bintrack.view.map_state import DEFAULT_TAIL
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from bintrack.services.view import add_web_arguments
-
     parser.add_argument("recording", nargs="?", metavar="RECORDING.mcap",
                         help="a recording to play in the page (default: the live network on the bus)")
-    add_web_arguments(parser)
+    parser.add_argument("--map-port", dest="port", type=port_number, default=DEFAULT_PORT, metavar="PORT",
+                        help="HTTP port of the map (default: %(default)s, or a free one if that is taken)")
+    add_alias(parser, "--port", "--map-port", "port", type=port_number)
+    parser.add_argument("--map-bind", dest="bind", default=DEFAULT_BIND, metavar="ADDRESS",
+                        help="address the map is served on (default: %(default)s, this machine only)")
+    add_alias(parser, "--bind", "--map-bind", "bind")
+    parser.add_argument("--tail", type=positive_float, default=DEFAULT_TAIL, metavar="S",
+                        help="event time drawn behind each track and truth target, s (default: %(default)s)")
     parser.add_argument("--id", help="instance id on the bus (default: host-pid)")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    add_bus_arguments(parser)
+    add_bus_arguments(parser, net_default=None)
+    parser.set_defaults(socket_fd=None)
+    parser.epilog = "Without --net and a recording: the one network alive on the bus (they are listed if several)."
 
 
 def run(args: argparse.Namespace) -> int:
@@ -30,6 +41,8 @@ def run(args: argparse.Namespace) -> int:
         from bintrack.view.recording_source import serve_recording
 
         return serve_recording(args)
+    from bintrack.cli.network_choice import network_of
     from bintrack.services.view import View
 
+    args.net = network_of(args, "view")
     return View(args).run()

@@ -14,6 +14,7 @@ import asyncio
 import signal
 import sys
 
+from bintrack.cli.network_choice import no_router
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.live.network_client import BintrackClient
 from bintrack.messages import LocalEstimate, TrackSet, Transition
@@ -26,7 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="which messages to print (default: %(default)s)")
     parser.add_argument("--region", metavar="NAME",
                         help="with --what tracks: one region's base station's tracks (region/NAME/tracks)")
-    add_bus_arguments(parser, net_default=None)
+    add_bus_arguments(parser, net_default=None, checkpoint=False)
+    parser.set_defaults(wait=10.0)  # a newcomer without a stack hears so in 10 s, not 60
     parser.epilog = "Without --net, the one network alive on the bus (the alive ones are listed if several)."
 
 
@@ -61,7 +63,10 @@ async def watch(args: argparse.Namespace) -> int:
         return 2
     try:
         client = await BintrackClient.from_args(args).open()
-    except (ValueError, ConnectionError) as exc:
+    except ConnectionError:
+        print(f"bintrack watch: {no_router(args)}", file=sys.stderr)
+        return 1
+    except ValueError as exc:
         print(f"bintrack watch: {exc}", file=sys.stderr)
         return 1
     try:

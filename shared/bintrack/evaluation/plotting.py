@@ -29,16 +29,69 @@ if TYPE_CHECKING:
 # Above this many range sensors, their disks would hide everything else.
 MAX_RANGE_CIRCLES = 150
 
+# Nor are they drawn when each point of the field lies, on average, in more than this many of
+# them: the circles would be a grey mesh.
+MAX_COVER = 3.0
+
 DENSE_TRACK_ROWS = 400
-SENSOR_COLOUR = "0.55"
-DETECTED_COLOUR = "tab:orange"
-TRUTH_COLOUR = "black"
+# Sensors are neutral greys, so that every colour on the plot is a track's (and its truth's).
+SENSOR_COLOUR = "0.7"
+DETECTED_COLOUR = "0.3"
+TRUTH_COLOUR = "black"  # a truth path no track follows
+# tab10 without its grey (index 7): the tracks' colours, none of them a sensor's
+TRACK_COLOURS = [colormaps["tab10"](i) for i in range(10) if i != 7]
 
 
-def detected_sensors(deployment: Deployment, events: Iterable[Event]) -> set[str]:
-    """Ids of the sensors that reported present at least once in ``events``."""
+def detected_sensors(deployment: Deployment, events: Iterable[Event],
+                     truth: Mapping[str, TruthPath] | None = None) -> set[str]:
+    """Ids of the sensors that reported present at least once in ``events``. With ``truth``,
+    a range sensor (disk, sector) counts only for a report made while a true target was within
+    its range: false alarms do not make a sensor "detected"."""
     sensors = deployment.by_id()
-    return {e.sensor for e in events if e.sensor in sensors and reports_presence(sensors[e.sensor], e.value)}
+    found: set[str] = set()
+    paths = list((truth or {}).values())
+    for e in events:
+        sensor = sensors.get(e.sensor)
+        if sensor is None or e.sensor in found or not reports_presence(sensor, e.value):
+            continue
+        if paths and isinstance(sensor, (DiskSensor, SectorSensor)):
+            near = [np.hypot(*(path.position(e.t) - (sensor.x, sensor.y))) for path in paths]
+            if not any(d <= sensor.range * 1.05 for d in near if np.isfinite(d)):
+                continue  # a false alarm: no target in range
+        found.add(e.sensor)
+    return found
+
+
+def truth_of_tracks(tracks: Sequence[TrackRow], truth: Mapping[str, TruthPath]) -> dict[int, str]:
+    """Track id -> the truth target it follows: a one-to-one assignment (Hungarian, scipy)
+    minimising the mean distance (units) over the times both exist; pairs that never coexist
+    are not matched."""
+    from scipy.optimize import linear_sum_assignment
+
+    ids = sorted({r.track for r in tracks})
+    names = list(truth)
+    if not ids or not names:
+        return {}
+    cost = np.full((len(ids), len(names)), 1e12)
+    for i, track in enumerate(ids):
+        rows = [r for r in tracks if r.track == track]
+        t = np.array([r.t for r in rows])
+        xy = np.array([(r.x, r.y) for r in rows])
+        for j, name in enumerate(names):
+            d = np.hypot(*(truth[name].position(t) - xy).T)
+            d = d[np.isfinite(d)]
+            if d.size:
+                cost[i, j] = d.mean()
+    rows_, cols = linear_sum_assignment(cost)
+    return {ids[i]: names[j] for i, j in zip(rows_, cols) if cost[i, j] < 1e12}
+
+
+def range_cover(deployment: Deployment) -> float:
+    """How many range sensors (disk, sector) cover a point of the field on average: the sum of
+    their disks' areas over the region's area."""
+    region = deployment.region
+    area = sum(np.pi * s.range ** 2 for s in deployment.sensors if isinstance(s, (DiskSensor, SectorSensor)))
+    return float(area / max(region.width * region.height, 1e-12))
 
 
 def beam_segment(a: float, b: float, region) -> np.ndarray | None:
@@ -61,7 +114,7 @@ def beam_segment(a: float, b: float, region) -> np.ndarray | None:
 def _draw_sensors(ax, deployment: Deployment, detected: Collection[str]) -> None:
     point_sensors = [s for s in deployment.sensors if getattr(s, "x", None) is not None]
     range_sensors = [s for s in deployment.sensors if isinstance(s, (DiskSensor, SectorSensor))]
-    if 0 < len(range_sensors) <= MAX_RANGE_CIRCLES:
+    if 0 < len(range_sensors) <= MAX_RANGE_CIRCLES and range_cover(deployment) <= MAX_COVER:
         for hit, alpha in ((False, 0.15), (True, 0.4)):
             chosen = [s for s in range_sensors if (s.id in detected) == hit]
             if chosen:
@@ -83,14 +136,16 @@ def _draw_sensors(ax, deployment: Deployment, detected: Collection[str]) -> None
         for motion in (False, True):
             group = [s for s in point_sensors if (s.id in detected) == hit and isinstance(s, MotionSensor) == motion]
             if group:
-                ax.scatter([s.x for s in group], [s.y for s in group], s=18 if hit else 6,
+                ax.scatter([s.x for s in group], [s.y for s in group], s=14 if hit else 6,
                            marker="^" if motion else "o", color=DETECTED_COLOUR if hit else SENSOR_COLOUR,
                            zorder=2, linewidths=0,
-                           label=("motion sensors" if motion else "sensors") + (", detected" if hit else ""))
+                           label=("motion sensors" if motion else "sensors") + (", saw a target" if hit else ""))
 
 
 def _colours(n: int) -> list:
-    cmap = colormaps["tab10" if n <= 10 else "tab20"]
+    if n <= len(TRACK_COLOURS):
+        return TRACK_COLOURS[:n]
+    cmap = colormaps["tab20"]
     return [cmap(i % cmap.N) for i in range(n)]
 
 
@@ -98,9 +153,10 @@ def plot_scene(path: Path | str, deployment: Deployment, *, tracks: Sequence[Tra
                objects: Sequence[ObjectRow] = (), truth: Mapping[str, TruthPath] | None = None,
                detected: Collection[str] = (), title: str = "", series: Sequence[Series] = ()) -> Path:
     """Write a PNG to ``path``: sensors (dots; disk ranges as faint circles when there are at
-    most :data:`MAX_RANGE_CIRCLES`; known laser beams as dotted lines), sensors in ``detected``
-    highlighted, estimated tracks (one colour per track id), line-sensor objects (entry ▲ to
-    exit ▼), truth paths (dashed) and ``title``. With ``series``, a second panel shows each
+    most :data:`MAX_RANGE_CIRCLES` overlapping at most :data:`MAX_COVER` deep; known laser beams as dotted lines), sensors in ``detected``
+    darker (both grey), estimated tracks (one colour per track id), line-sensor objects (entry ▲
+    to exit ▼), truth paths (dashed, each in the colour of the track that follows it, black if
+    none does) and ``title``. With ``series``, a second panel shows each
     error over time. Returns the path written."""
     path = Path(path)
     region = deployment.region
@@ -121,17 +177,22 @@ def plot_scene(path: Path | str, deployment: Deployment, *, tracks: Sequence[Tra
                            edgecolor="0.3", linewidth=1.0))
     _draw_sensors(ax, deployment, set(detected))
 
-    for i, path_ in enumerate((truth or {}).values()):
-        ax.plot(path_.xy[:, 0], path_.xy[:, 1], linestyle="--", color=TRUTH_COLOUR, linewidth=1.6,
-                label="truth" if i == 0 else None, zorder=6)
-
     track_ids = sorted({r.track for r in tracks})
-    for track, colour in zip(track_ids, _colours(len(track_ids))):
+    colour_of = dict(zip(track_ids, _colours(len(track_ids))))
+    followed = {name: track for track, name in truth_of_tracks(tracks, truth or {}).items()}
+    for name, path_ in (truth or {}).items():
+        track = followed.get(name)
+        colour = colour_of[track] if track is not None else TRUTH_COLOUR
+        label = f"truth {name}" + (f" (track {track})" if track is not None else "")
+        ax.plot(path_.xy[:, 0], path_.xy[:, 1], linestyle="--", color=colour, linewidth=2.0, alpha=0.8,
+                label=label if len(truth) <= 10 else None, zorder=3)
+
+    for track in track_ids:
         rows = sorted((r for r in tracks if r.track == track), key=lambda r: r.t)
         label = f"track {track}" if len(track_ids) <= 10 else ("tracks" if track == track_ids[0] else None)
         # a dense track is drawn as points: lines between its jumps would hide everything else
         dense = len(rows) > DENSE_TRACK_ROWS
-        ax.plot([r.x for r in rows], [r.y for r in rows], color=colour, linewidth=0 if dense else 1.0,
+        ax.plot([r.x for r in rows], [r.y for r in rows], color=colour_of[track], linewidth=0 if dense else 1.0,
                 marker=".", markersize=2 if dense else 3, alpha=0.5 if dense else 1.0, label=label, zorder=4)
 
     for obj, colour in zip(objects, _colours(len(objects))):
@@ -174,7 +235,7 @@ def plot_evaluation(path: Path | str, dataset: Dataset, evaluation: Evaluation, 
         tracks=evaluation.tracks,
         objects=evaluation.objects,
         truth=evaluation.truth,
-        detected=detected_sensors(dataset.deployment, dataset.events()),
+        detected=detected_sensors(dataset.deployment, dataset.events(), evaluation.truth),
         title=f"{dataset.deployment.name}: {evaluation.headline()}",
         series=evaluation.series if error_panel else (),
     )

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from bintrack.formats import FormatError
@@ -27,7 +28,8 @@ class RecordingFiles:
     on; a new file once one holds ``split_size`` bytes or spans ``split_duration`` s."""
 
     def __init__(self, out: str, deployment: Deployment, net: str, part: int = 0,
-                 split_size: int | None = None, split_duration: float | None = None):
+                 split_size: int | None = None, split_duration: float | None = None,
+                 on_finalised: Callable[[str], None] | None = None):
         self.out = out
         self.deployment = deployment
         self.net = net
@@ -38,6 +40,7 @@ class RecordingFiles:
         self.writer: RecordingWriter | None = None
         self.part_start: float | None = None  # event time of the first tick of the current file
         self.flushed_at, self.flushed_t = time.monotonic(), None
+        self.on_finalised = on_finalised  # called with each file's path once it is finalised
 
     def open(self) -> None:
         """Start the current part's file (raises OSError); the header and the deployment are on
@@ -97,3 +100,5 @@ class RecordingFiles:
         if self.writer is not None and not self.writer.closed:
             self.writer.close()
             log.info("recorder: %d messages recorded in %s", self.writer.count, self.writer.path)
+            if self.on_finalised is not None:
+                self.on_finalised(str(self.writer.path))

@@ -100,8 +100,8 @@ def client_config(role: str, certs: Path, endpoints: Iterable[str], profile: Pat
     return config
 
 
-# services whose role is not their own name: the map is a read-only viewer
-ROLE_OF_SERVICE = {"view": "viewer"}
+# services whose role is not their own name: the map and the Foxglove bridge are read-only viewers
+ROLE_OF_SERVICE = {"view": "viewer", "foxglove_bridge": "viewer"}
 
 
 def role_of(service: str) -> str:

@@ -21,8 +21,10 @@ STATE_DIR_OPTION = "--state-dir"
 log = logging.getLogger("bintrack")
 
 
-def add_bus_arguments(parser: argparse.ArgumentParser, *, net_default: str | None = "default") -> None:
-    """The Zenoh examples' options, plus the network name and how long to wait for the router."""
+def add_bus_arguments(parser: argparse.ArgumentParser, *, net_default: str | None = "default",
+                      checkpoint: bool = True) -> None:
+    """The Zenoh examples' options, plus the network name and how long to wait for the router
+    (and, if ``checkpoint``, the state folder of a service)."""
     group = parser.add_argument_group("Zenoh session")
     group.add_argument("-m", "--mode", choices=("peer", "client", "router"),
                        help="Zenoh mode (default: client of the router, or as the config file says)")
@@ -41,9 +43,10 @@ def add_bus_arguments(parser: argparse.ArgumentParser, *, net_default: str | Non
                        help="how long to keep retrying to reach the router, s (default: %(default)s)")
     group.add_argument("--max-payload", type=int, default=DEFAULT_MAX_PAYLOAD, metavar="BYTES",
                        help="refuse a sample larger than this before reading it (default: %(default)s)")
-    group.add_argument(STATE_DIR_OPTION, metavar="DIR",
-                       help="keep a checkpoint of this instance (named by --id) in DIR and resume from it after "
-                       "a restart (default: none)")
+    if checkpoint:
+        group.add_argument(STATE_DIR_OPTION, metavar="DIR",
+                           help="keep a checkpoint of this instance (named by --id) in DIR and resume from it "
+                           "after a restart (default: none)")
 
 
 def zenoh_config(args: argparse.Namespace) -> zenoh.Config:

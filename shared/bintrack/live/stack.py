@@ -34,7 +34,7 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
                    loop: bool = False, record: str | None = None, estimates: str | None = None,
                    tracker_args: tuple[str, ...] = (), view_port: int | None = None,
                    view_bind: str = "127.0.0.1", state_dir: str | None = None,
-                   clock_period: float | None = None) -> list[ServiceCommand]:
+                   clock_period: float | None = None, foxglove_port: int | None = None) -> list[ServiceCommand]:
     """The services in start order: the sensor agents, the peer agents if ``tracker`` runs on
     them, the base station, the recorder if ``record``, the view if ``view_port``, and last the replay of ``source`` (if
     any), which waits for all the others. ``estimates``: the peer tracker whose estimates
@@ -43,7 +43,8 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
     service) on http://``view_bind``:``view_port``/, None for no map; ``state_dir``: each service
     but the view keeps its checkpoint there under a fixed ``--id`` (its name), so that a
     restarted container resumes (compose; ``up`` gives its own); ``clock_period``: the replay's
-    ``--clock-period`` (s of event time), None for its default."""
+    ``--clock-period`` (s of event time), None for its default; ``foxglove_port``: the Foxglove
+    bridge on ws://``view_bind``:``foxglove_port``, None for none."""
     bus = ("-e", endpoint, "--net", net)
     services = [ServiceCommand("sensor_agent", bus)]
     if runs_on_peers(tracker):
@@ -54,14 +55,17 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
             services.append(ServiceCommand("peer_agent", ("--tracker", estimates, *bus)))
         extra = (*tracker_args, *(("--estimates", estimates) if estimates is not None else ()))
         services.append(ServiceCommand("basestation", ("--tracker", tracker, *extra, *bus)))
-    services += _recorder_and_view(record, loop and source is not None, view_port, view_bind, bus)
+    services += _recorder_and_view(record, loop and source is not None, view_port, view_bind, bus, foxglove_port)
     if source is not None:
         replay = [*_replay_pace(source, speed, loop, clock_period), "--wait-for", ",".join(s.name for s in services)]
         services.append(ServiceCommand("replay", (*replay, *bus)))
     if state_dir is not None:
-        services = [s if s.name == "view" else ServiceCommand(s.name, (*s.args, "--id", s.name, "--state-dir", state_dir))
+        services = [s if s.name in STATELESS else ServiceCommand(s.name, (*s.args, "--id", s.name, "--state-dir", state_dir))
                     for s in services]
     return services
+
+
+STATELESS = ("view", "foxglove_bridge")  # nothing to resume: no checkpoint
 
 
 def _replay_pace(source: str, speed: float, loop: bool, clock_period: float | None) -> list[str]:
@@ -96,7 +100,8 @@ def region_endpoints(listen: str, count: int) -> list[str]:
 def region_stack_commands(*, regions: list[str], endpoint: str, net: str, source: str | None = None,
                           speed: float = 1.0, loop: bool = False, record: str | None = None,
                           tracker_args: tuple[str, ...] = (), view_port: int | None = None,
-                          view_bind: str = "127.0.0.1", clock_period: float | None = None) -> list[ServiceCommand]:
+                          view_bind: str = "127.0.0.1", clock_period: float | None = None,
+                          foxglove_port: int | None = None) -> list[ServiceCommand]:
     """The stack of a deployment cut into ``regions`` (mcmcda at the base stations): per region
     a router (meshed with the hub router at ``endpoint`` and the regions' routers before it), a
     sensor agent and a base station on that router; then on the hub the merge, the recorder if
@@ -114,7 +119,7 @@ def region_stack_commands(*, regions: list[str], endpoint: str, net: str, source
                                                        *bus), f"basestation-{region}"))
     bus = ("-e", endpoint, "--net", net)
     services.append(ServiceCommand("merge", bus))
-    services += _recorder_and_view(record, loop and source is not None, view_port, view_bind, bus)
+    services += _recorder_and_view(record, loop and source is not None, view_port, view_bind, bus, foxglove_port)
     if source is not None:
         n = len(regions)
         wanted = [f"sensor_agent*{n}", f"basestation*{n}", *(c.name for c in services if c.name not in
@@ -125,13 +130,17 @@ def region_stack_commands(*, regions: list[str], endpoint: str, net: str, source
 
 
 def _recorder_and_view(record: str | None, looping: bool, view_port: int | None, view_bind: str,
-                       bus: tuple[str, ...]) -> list[ServiceCommand]:
-    """The recorder (into ``record``) and the view (on ``view_port``), those asked for."""
+                       bus: tuple[str, ...], foxglove_port: int | None = None) -> list[ServiceCommand]:
+    """The recorder (into ``record``), the view (on ``view_port``) and the Foxglove bridge (on
+    ``foxglove_port``), those asked for."""
     services = []
     if record is not None:
         # a looping replay never ends: record across the loops until stopped
         until = ("--until", "stopped") if looping else ()
-        services.append(ServiceCommand("recorder", ("--out", record, *until, *bus)))
+        foxglove = ("--foxglove",) if foxglove_port is not None else ()  # and Foxglove's copy of the file
+        services.append(ServiceCommand("recorder", ("--out", record, *until, *foxglove, *bus)))
     if view_port is not None:
         services.append(ServiceCommand("view", ("--port", str(view_port), "--bind", view_bind, *bus)))
+    if foxglove_port is not None:
+        services.append(ServiceCommand("foxglove_bridge", ("--port", str(foxglove_port), "--bind", view_bind, *bus)))
     return services

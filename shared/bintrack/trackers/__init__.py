@@ -148,6 +148,22 @@ def check_options(name: str, options: TrackerOptions) -> None:
             raise ValueError(f"peer estimates come from a peer tracker ({', '.join(_PEER)}), not {options.estimates!r}")
 
 
+# the sensor kinds each tracker is made for (paper by paper)
+_MADE_FOR = {**{name: ("disk",) for name in (*BASELINES, "arc")}, "sector": ("sector",), "mcmcda": ("disk", "sector"),
+             "adaptive-basis": ("line",), **{name: ("motion",) for name in ("velocity-plane", "svm", "ppr", "motion-rw")}}
+
+
+def sensor_mismatch(name: str, deployment: Deployment) -> str | None:
+    """Why tracker ``name`` does not fit ``deployment``'s sensors (one line), or None if some of
+    them are of a kind it is made for."""
+    kinds = sorted({sensor.kind for sensor in deployment.sensors})
+    wanted = _MADE_FOR.get(name, ())
+    if not wanted or set(kinds) & set(wanted):
+        return None
+    return (f"tracker {name} is made for {' or '.join(wanted)} sensors; this deployment has "
+            f"{', '.join(kinds) or 'no'} sensors only")
+
+
 def make_tracker(name: str, deployment: Deployment, options: TrackerOptions = TrackerOptions()) -> Tracker:
     """A fresh tracker ``name`` for ``deployment``."""
     check_options(name, options)
@@ -155,4 +171,4 @@ def make_tracker(name: str, deployment: Deployment, options: TrackerOptions = Tr
 
 
 __all__ = ["Tracker", "TrackerOptions", "TRACKER_NAMES", "PEER_TRACKERS", "BASE_TRACKERS", "BASELINES",
-           "OBJECT_TRACKERS", "runs_on_peers", "check_options", "make_tracker"]
+           "OBJECT_TRACKERS", "runs_on_peers", "check_options", "make_tracker", "sensor_mismatch"]

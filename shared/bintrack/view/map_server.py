@@ -17,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import socket
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
@@ -227,17 +228,50 @@ def make_app(source: Source) -> web.Application:
     return app
 
 
-async def start_site(app: web.Application, bind: str, port: int) -> web.AppRunner:
-    """Serve ``app`` on http://bind:port; OSError (one line) if the port cannot be had."""
+def listening_socket(bind: str, port: int, *, fallback: bool = True) -> socket.socket:
+    """A TCP socket bound to ``bind``:``port`` and listening, kept open by the caller so that no
+    other program can take the port between this and the serving. If ``port`` is taken and
+    ``fallback``, a free port on ``bind`` instead (``getsockname()`` says which). OSError with a
+    one-line text if neither can be had."""
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(bind or None, port, type=socket.SOCK_STREAM,
+                                                             flags=socket.AI_PASSIVE)[0]
+    except socket.gaierror as exc:
+        raise OSError(f"cannot serve the map on {bind}:{port}: {exc.strerror or exc}") from None
+    tried = (port, 0) if fallback and port != 0 else (port,)
+    error: OSError | None = None
+    for candidate in tried:
+        sock = socket.socket(family, kind, proto)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # a page's TIME_WAIT must not block a restart
+        try:
+            sock.bind((address[0], candidate, *address[2:]))
+            sock.listen(128)
+        except OSError as exc:
+            sock.close()
+            error = error or exc
+            continue
+        return sock
+    raise OSError(f"cannot serve the map on {bind}:{port}: {error.strerror or error}")
+
+
+async def start_site(app: web.Application, sock: socket.socket) -> web.AppRunner:
+    """Serve ``app`` on the listening socket ``sock`` (see :func:`listening_socket`)."""
     runner = web.AppRunner(app, handle_signals=False, access_log=None)
     await runner.setup()
-    site = web.TCPSite(runner, bind, port)
+    site = web.SockSite(runner, sock)
     try:
         await site.start()
     except OSError as exc:
         await runner.cleanup()
-        raise OSError(f"cannot serve the map on {bind}:{port}: {exc.strerror or exc}") from None
+        raise OSError(f"cannot serve the map on {sock.getsockname()}: {exc.strerror or exc}") from None
     return runner
+
+
+def served_line(service: str, bind: str, port: int, sock: socket.socket) -> str:
+    """The one line that says where the map is served (and that ``port`` was taken, if so)."""
+    served = sock.getsockname()[1]
+    taken = f" (port {port} was taken)" if port not in (0, served) else ""
+    return f"{service}: map on {page_url(bind, served)}{taken}"
 
 
 def page_url(bind: str, port: int) -> str:

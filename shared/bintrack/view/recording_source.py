@@ -28,7 +28,7 @@ from bintrack.keys import parse_key
 from bintrack.messages import MessageError, decode
 from bintrack.live.recording import KIND_TYPES, open_recording
 from bintrack.view.map_messages import DRAWN_KINDS, Item, message_item
-from bintrack.view.map_server import DEFAULT_PAGE_QUEUE, PageFeed, make_app, page_url, start_site
+from bintrack.view.map_server import DEFAULT_PAGE_QUEUE, PageFeed, listening_socket, make_app, served_line, start_site
 from bintrack.view.map_state import DEFAULT_TAIL, MapState
 
 log = logging.getLogger("bintrack")
@@ -227,12 +227,12 @@ def serve_recording(args: argparse.Namespace) -> int:
 
     async def main() -> int:
         try:
-            runner = await start_site(make_app(source), args.bind, args.port)
+            sock = listening_socket(args.bind, args.port)
+            runner = await start_site(make_app(source), sock)
         except OSError as exc:
             raise CommandError(str(exc)) from None
-        url = page_url(args.bind, runner.addresses[0][1])
         t0, t1 = source.range
-        print(f"view: map on {url} ({source.path.name}: {t1 - t0:.1f} s of event time, "
+        print(f"{served_line('view', args.bind, args.port, sock)} ({source.path.name}: {t1 - t0:.1f} s of event time, "
               f"{len(source.recording.deployment.sensors)} sensors)", file=sys.stderr, flush=True)
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()

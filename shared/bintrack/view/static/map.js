@@ -2,8 +2,11 @@
 // Positions are in the deployment's units; Leaflet's L.CRS.Simple maps them 1:1 (lat = y, lng = x).
 "use strict";
 
-const PALETTE = ["#e53935", "#1e88e5", "#43a047", "#fb8c00", "#8e24aa", "#00897b", "#6d4c41", "#d81b60",
-                 "#3949ab", "#7cb342"];
+// Tracks only: no layer uses these hues (sensors grey, detecting yellow, motion green/red, the
+// other layers grey or black), so a track never looks like a layer and never vanishes on one.
+const PALETTE = ["#1e88e5", "#d81b60", "#00897b", "#8e24aa", "#e64a19", "#3949ab", "#6d4c41", "#0097a7"];
+const MAX_COVER = 3.0;        // range circles drawn only where a point lies in at most this many on average
+const LEGEND_TRACKS = 8;      // tracks listed one by one in the legend
 const ARROW_S = 2.0;          // a velocity arrow is the displacement over this many seconds
 const ESTIMATE_KEEP = 5.0;    // s of event time a peer estimate stays drawn
 const ELLIPSE_K = 2.4477;     // sqrt(chi2_2(0.95)): a 95 % covariance ellipse
@@ -25,39 +28,82 @@ const layers = {
   objects: L.layerGroup().addTo(map),
   velocity: L.layerGroup().addTo(map),
   tracks: L.layerGroup().addTo(map),
+  ranges: L.layerGroup(),     // no content: shows or hides the range circles (a class on the map)
 };
-L.control.layers(null, {
-  "Sensors": layers.sensors, "Fused reports (95 % ellipses)": layers.reports, "Peer estimates": layers.estimates,
-  "Tracks": layers.tracks, "Track tails": layers.tails, "Truth (dashed)": layers.truth,
-  "Laser objects": layers.objects, "Velocity": layers.velocity,
-}, { collapsed: false }).addTo(map);
-L.control.scale({ metric: false, imperial: false }).addTo(map);
+layers.ranges.on("add", () => map.getContainer().classList.add("show-ranges"));
+layers.ranges.on("remove", () => map.getContainer().classList.remove("show-ranges"));
+// the layer box lists a layer once something of it is on the page
+const LAYER_NAMES = {
+  sensors: "Sensors", ranges: "Sensor ranges", reports: "Fused reports (95 % ellipses)", estimates: "Peer estimates",
+  tracks: "Tracks", tails: "Track tails", truth: "Truth (dashed)", objects: "Laser objects", velocity: "Velocity",
+};
+const layerBox = L.control.layers(null, {}, { collapsed: false }).addTo(map);
+const listed = new Set();
+function listLayer(name) {
+  if (listed.has(name)) return;
+  listed.add(name);
+  layerBox.addOverlay(layers[name], LAYER_NAMES[name]);
+}
 
+// a scale bar in the deployment's units (L.CRS.Simple: one unit is 2^zoom pixels)
+const scaleBar = L.control({ position: "bottomleft" });
+scaleBar.onAdd = () => L.DomUtil.create("div", "scale-bar");
+scaleBar.addTo(map);
+function drawScale() {
+  const el = scaleBar.getContainer();
+  if (!el || !S.deployment) return;
+  const unitsPerPx = 1 / Math.pow(2, map.getZoom());
+  const target = 120 * unitsPerPx;
+  const step = Math.pow(10, Math.floor(Math.log10(target)));
+  const length = [5, 2, 1].map((m) => m * step).find((v) => v <= target) || step;
+  el.style.width = `${Math.round(length / unitsPerPx)}px`;
+  el.textContent = `${Number(length.toPrecision(3))} ${S.deployment.units}`;
+  el.dataset.length = String(length);
+}
+map.on("zoomend", drawScale);
+
+// The legend lists what is on the page: each entry once its first item is drawn, each
+// current track in its own colour.
 const legend = L.control({ position: "bottomright" });
-legend.onAdd = () => {
-  const div = L.DomUtil.create("div", "legend");
-  const swatch = (svg, text) => `<div><svg width="26" height="14">${svg}</svg>${text}</div>`;
-  div.innerHTML = [
-    swatch('<circle cx="13" cy="7" r="6" fill="#90a4ae" fill-opacity=".15" stroke="#90a4ae"/>', "sensor range"),
-    swatch('<circle cx="13" cy="7" r="6" fill="#ff9800" fill-opacity=".5" stroke="#ef6c00"/>', "detecting (fades after)"),
-    swatch('<circle cx="7" cy="7" r="5" fill="#66bb6a" stroke="#2e7d32"/><circle cx="19" cy="7" r="5" fill="#ef5350" stroke="#c62828"/>', "motion sensor: closer / farther"),
-    swatch('<path d="M13 7 L24 2 A12 12 0 0 1 24 12 Z" fill="#ff9800" fill-opacity=".6" stroke="#ef6c00"/>', "lit sector"),
-    swatch('<path d="M1 11 L12 7 L25 3" stroke="#2e7d32" stroke-width="3" fill="none"/>', "velocity estimate (10 s)"),
-    swatch('<ellipse cx="13" cy="7" rx="10" ry="5" fill="#ab47bc" fill-opacity=".2" stroke="#6a1b9a"/>', "fused report, 95 % ellipse"),
-    swatch('<circle cx="13" cy="7" r="3.5" fill="#4dd0e1" stroke="#00838f"/>', "peer estimate"),
-    swatch('<path d="M1 10 L18 5" stroke="#e53935" stroke-width="2.5"/><circle cx="20" cy="5" r="4" fill="#e53935"/>', "track: id, tail, velocity (2 s)"),
-    swatch('<path d="M1 7 L25 7" stroke="#212121" stroke-dasharray="5 4" stroke-width="1.5"/>', "truth"),
-    swatch('<path d="M1 11 L25 3" stroke="#1565c0" stroke-width="2.5"/>', "laser object"),
-  ].join("");
-  return div;
-};
+legend.onAdd = () => L.DomUtil.create("div", "legend");
 legend.addTo(map);
+const LEGEND = {
+  range: ['<circle cx="13" cy="7" r="6" class="sensor"/>', "sensor range"],
+  node: ['<circle cx="13" cy="7" r="2" class="sensor-node"/>', "sensor"],
+  detecting: ['<circle cx="13" cy="7" r="6" class="sensor lit"/>', "detecting (fades after)"],
+  motion: ['<circle cx="7" cy="7" r="5" class="sensor closer"/><circle cx="19" cy="7" r="5" class="sensor farther"/>', "motion sensor: closer / farther"],
+  beam: ['<path d="M1 11 L25 3" class="beam"/>', "laser beam"],
+  sector: ['<path d="M13 7 L24 2 A12 12 0 0 1 24 12 Z" class="sector-lit"/>', "lit sector"],
+  velocity: ['<path d="M1 11 L12 7 L25 3" class="velocity"/>', "velocity estimate (10 s)"],
+  report: ['<ellipse cx="13" cy="7" rx="10" ry="5" class="report"/>', "fused report, 95 % ellipse"],
+  estimate: ['<circle cx="13" cy="7" r="3.5" class="estimate"/>', "peer estimate"],
+  truth: ['<path d="M1 7 L25 7" class="truth"/>', "truth"],
+  object: ['<path d="M1 11 L25 3" class="object"/>', "laser object"],
+};
+const shown = new Set();    // legend entries with something on the page
+let legendDirty = true;
+function show(entry) { if (!shown.has(entry)) { shown.add(entry); legendDirty = true; } }
+function renderLegend() {
+  legendDirty = false;
+  const rows = [];
+  for (const [name, [svg, text]] of Object.entries(LEGEND)) {
+    if (shown.has(name)) rows.push(`<div data-entry="${name}"><svg width="26" height="14">${svg}</svg>${text}</div>`);
+  }
+  const current = Object.values(S.tracks).filter((tr) => tr.current).map((tr) => tr.id).sort((a, b) => a - b);
+  for (const id of current.slice(0, LEGEND_TRACKS)) {
+    rows.push(`<div data-entry="track" data-track="${id}"><svg width="26" height="14"><path d="M1 10 L18 5" ` +
+      `stroke="${colour(id)}" stroke-width="2.5"/><circle cx="20" cy="5" r="4" fill="${colour(id)}"/></svg>track ${id}</div>`);
+  }
+  if (current.length > LEGEND_TRACKS) rows.push(`<div data-entry="more">… ${current.length - LEGEND_TRACKS} more tracks</div>`);
+  if (current.length) rows.push(`<div class="legend-note">track: id, tail, velocity (2 s)</div>`);
+  legend.getContainer().innerHTML = rows.join("");
+}
 
 // ------------------------------------------------------------------------------ state
 
 const S = {
   deployment: null, sensors: {}, tracks: {}, truth: {}, estimates: {}, t: null, tail: 30,
-  status: {}, mode: null, pending: [], ended: null, received: 0, seeking: false,
+  status: {}, mode: null, pending: [], ended: null, received: 0, seeking: false, producing: new Set(),
 };
 // measurements for tests and benchmarks: rAF timestamps and arrival times of track scans
 const frames = [];
@@ -72,6 +118,24 @@ window.bintrack = {
   frameIntervals() { const out = []; for (let i = 1; i < frames.length; i++) out.push(frames[i] - frames[i - 1]); return out; },
   trackArrivals,
   sensorCount() { return document.querySelectorAll("path.sensor").length; },
+  legendEntries() { return Array.from(document.querySelectorAll(".legend [data-entry]")).map((el) => el.dataset.entry); },
+  // each legend track's colour and the colours its dot and label are drawn in, as the browser computes them
+  trackColours() {
+    return Array.from(document.querySelectorAll(".legend [data-entry=track]")).map((el) => {
+      const id = el.dataset.track;
+      const dot = document.querySelector(`path.track-dot.track-${id}`);
+      const label = document.querySelector(`.track-label[data-track="${id}"]`);
+      return { track: Number(id), legend: getComputedStyle(el.querySelector("circle")).fill,
+               dot: dot ? getComputedStyle(dot).fill : null,
+               label: label ? getComputedStyle(label).backgroundColor : null };
+    });
+  },
+  detectingColour() {
+    const el = document.querySelector("path.sensor.lit");
+    return el ? getComputedStyle(el).fill : null;
+  },
+  rangesShown() { return map.getContainer().classList.contains("show-ranges"); },
+  scaleBar() { const el = document.querySelector(".scale-bar"); return { text: el.textContent, px: el.offsetWidth }; },
   trackLabels() {
     return Array.from(document.querySelectorAll(".track-label")).map((el) => ({
       track: Number(el.dataset.track), x: Number(el.dataset.x), y: Number(el.dataset.y), t: Number(el.dataset.t) }));
@@ -98,7 +162,20 @@ function setDeployment(dep) {
   layers.sensors.clearLayers();
   S.sensors = {};
   const [xmin, ymin, xmax, ymax] = dep.region;
+  // range circles: off by default where they overlap heavily (a grey mesh otherwise)
+  const area = dep.sensors.filter((s) => (s.kind === "disk" || s.kind === "sector") && s.x !== null)
+    .reduce((sum, s) => sum + Math.PI * s.r * s.r, 0);
+  const cover = area / Math.max((xmax - xmin) * (ymax - ymin), 1e-12);
+  listLayer("sensors");
+  if (area > 0) {
+    listLayer("ranges");
+    if (cover <= MAX_COVER) { layers.ranges.addTo(map); show("range"); } else map.removeLayer(layers.ranges);
+    show("node");
+  }
+  if (dep.sensors.some((s) => s.kind === "motion")) show("motion");
+  if (dep.sensors.some((s) => s.kind === "line")) show("beam");
   map.fitBounds([ll(xmin, ymin), ll(xmax, ymax)], { padding: [10, 10] });   // before drawing: layers need a view
+  drawScale();
   L.rectangle([ll(xmin, ymin), ll(xmax, ymax)], { color: "#b0bec5", weight: 1, fill: false, dashArray: "2 4",
                                                  interactive: false }).addTo(layers.sensors);
   for (const spec of dep.sensors) {
@@ -145,6 +222,7 @@ function setSensor(id, value, t, animate = true) {
     const was = el.classList.contains("lit");
     el.dataset.sensor = id;
     el.classList.toggle("lit", lit);
+    if (lit) show(kind === "sector" ? "sector" : "detecting");
     el.dataset.value = String(value);
     el.dataset.t = t === null ? "" : String(t);
     el.classList.toggle("closer", kind === "motion" && value > 0);
@@ -217,7 +295,7 @@ function trackEntry(id) {
     const c = colour(id);
     tr = S.tracks[id] = { id, points: [], current: false, x: 0, y: 0, vx: null, vy: null, t: null };
     tr.tail = L.polyline([], { className: "tail", color: c, interactive: false }).addTo(layers.tails);
-    tr.dot = L.circleMarker(ll(0, 0), { radius: 6, className: "track-dot", fillColor: c, color: "#fff" });
+    tr.dot = L.circleMarker(ll(0, 0), { radius: 6, className: `track-dot track-${id}`, fillColor: c, color: "#fff" });
     tr.dot.bindTooltip(() => `track ${id} · t ${fmt(tr.t, 2)} s · (${fmt(tr.x)}, ${fmt(tr.y)})` +
       (tr.vx === null ? "" : ` · v (${fmt(tr.vx)}, ${fmt(tr.vy)}) /s`), { sticky: true });
     tr.label = L.marker(ll(0, 0), { icon: labelIcon(id, 0, 0, 0), interactive: false, keyboard: false });
@@ -228,6 +306,8 @@ function trackEntry(id) {
 
 function applyTracks(item, redraw = true) {
   const seen = new Set();
+  legendDirty = true;
+  if (item.tracks.length) { listLayer("tracks"); listLayer("tails"); }
   for (const [id, x, y, vx, vy] of item.tracks) {
     const tr = trackEntry(id);
     seen.add(id);
@@ -280,6 +360,7 @@ function trimTails() {
 
 function applyReports(item) {
   layers.reports.clearLayers();
+  if (item.reports.length) { show("report"); listLayer("reports"); }
   for (const [x, y, cxx, cxy, cyy, shared] of item.reports) {
     L.polygon(ellipse(x, y, cxx, cxy, cyy), { className: shared ? "report shared" : "report" })
       .bindTooltip(`fused report · t ${fmt(item.t, 2)} s · (${fmt(x)}, ${fmt(y)})${shared ? " · shared" : ""}`, { sticky: true })
@@ -288,6 +369,7 @@ function applyReports(item) {
 }
 
 function applyEstimate(item) {
+  show("estimate"); listLayer("estimates");
   const old = S.estimates[item.node];
   if (old) layers.estimates.removeLayer(old.layer);
   const layer = L.circleMarker(ll(item.x, item.y), { radius: 3.5, className: "estimate" })
@@ -297,6 +379,7 @@ function applyEstimate(item) {
 }
 
 function applyObject(item) {
+  show("object"); listLayer("objects");
   const [ex, ey] = item.entry, [xx, xy] = item.exit;
   const arrow = arrowLatLngs(ex, ey, xx - ex, xy - ey, 1) || [[ll(ex, ey), ll(xx, xy)]];
   L.polyline(arrow, { className: "object" })
@@ -306,6 +389,7 @@ function applyObject(item) {
 }
 
 function applyVelocity(item) {
+  show("velocity"); listLayer("velocity");
   layers.velocity.clearLayers();
   let [x, y] = item.p || [null, null];
   if (x === null && S.deployment) { const r = S.deployment.region; x = (r[0] + r[2]) / 2; y = (r[1] + r[3]) / 2; }
@@ -317,6 +401,7 @@ function applyVelocity(item) {
 }
 
 function applyTruth(item, redraw = true) {
+  show("truth"); listLayer("truth");
   let tg = S.truth[item.id];
   if (!tg) {
     tg = S.truth[item.id] = { points: [] };
@@ -380,7 +465,9 @@ function applyStatus(st) {
   if (S.deployment) parts.push(`${S.deployment.sensors.length} sensors (${S.deployment.units})`);
   if (st.rates) {
     const names = { raw: "events", transition: "transitions", estimate: "estimates", fusion_reports: "reports", tracks: "tracks" };
-    parts.push(Object.entries(st.rates).filter(([, r]) => r > 0 || st.mode === "live")
+    // only what the running stack produces: a figure appears once its rate was above 0
+    for (const [k, r] of Object.entries(st.rates)) if (r > 0) S.producing.add(k);
+    parts.push(Object.entries(st.rates).filter(([k]) => S.producing.has(k))
       .map(([k, r]) => `${names[k] || k} ${r}/s`).join(" · "));
   }
   if (st.services && st.services.length) parts.push(`services: ${st.services.join(", ")}`);
@@ -451,6 +538,7 @@ function frame(now) {
   }
   if (now - lastTrim > 250) { trimTails(); fadeSensors(now); lastTrim = now; }
   showTime();
+  if (legendDirty) renderLegend();
   requestAnimationFrame(frame);
 }
 requestAnimationFrame(frame);
