@@ -19,6 +19,7 @@ from bintrack.formats import FormatError
 SUBCOMMANDS = {
     "simulate": ("bintrack.cli.simulate_command", "write a simulated dataset for a named paper scenario"),
     "track": ("bintrack.cli.track_command", "run a tracker offline over a dataset folder and write tracks.csv"),
+    "import": ("bintrack.cli.import_command", "a recording of binary sensors (sample matrix, sensor table, CVML truth) as a dataset folder"),
     "eval": ("bintrack.cli.eval_command", "score tracks.csv or objects.csv against the dataset's truth.csv"),
     "schema": ("bintrack.cli.schema_command", "print the JSON Schema of every bus message"),
     "up": ("bintrack.cli.up_command", "the whole stack on this machine: router, services, and the replay of DIR"),
