@@ -8,7 +8,8 @@ import json
 
 from bintrack.argtypes import output_file, positive_float
 from bintrack.errors import CommandError
-from bintrack.evaluation.eval_report import DEFAULT_GOSPA_C, evaluate
+from bintrack.evaluation.clear_mot import MATCHINGS
+from bintrack.evaluation.eval_report import DEFAULT_GOSPA_C, DEFAULT_HIT, evaluate
 from bintrack.formats import open_dataset
 
 
@@ -18,13 +19,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plot", metavar="PNG", help="also write a PNG of sensors, detections, tracks and truth")
     parser.add_argument("--gospa-c", type=positive_float, default=DEFAULT_GOSPA_C, metavar="C",
                         help=f"GOSPA cut-off in the dataset's units (default {DEFAULT_GOSPA_C:g})")
+    parser.add_argument("--hit", type=positive_float, metavar="D",
+                        help=f"CLEAR MOT hit threshold in the dataset's units (default {DEFAULT_HIT:g} m)")
+    parser.add_argument("--matching", choices=MATCHINGS, default="greedy",
+                        help="CLEAR MOT pairing of the unmatched targets and tracks each frame: greedy (closest pair first, "
+                        "as Milan et al. score) or hungarian (optimal); default %(default)s")
+    parser.add_argument("--area", type=area_type, metavar="XMIN,YMIN,XMAX,YMAX",
+                        help="score only targets and tracks inside this tracking area, dataset units")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+
+def area_type(text: str) -> tuple[float, float, float, float]:
+    """XMIN,YMIN,XMAX,YMAX: a rectangle with XMIN < XMAX and YMIN < YMAX."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not four numbers xmin,ymin,xmax,ymax: {text!r}") from None
+    if len(values) != 4 or not (values[0] < values[2] and values[1] < values[3]):
+        raise argparse.ArgumentTypeError(f"needs xmin,ymin,xmax,ymax with xmin < xmax and ymin < ymax, got {text!r}")
+    return values
+
 
 def run(args: argparse.Namespace) -> int:
     dataset = open_dataset(args.dir)
     if args.plot:
         output_file(args.plot, what="plot")
-    evaluation = evaluate(dataset, args.result, gospa_c=args.gospa_c)
+    evaluation = evaluate(dataset, args.result, gospa_c=args.gospa_c, hit=args.hit, matching=args.matching,
+                          area=args.area)
     if args.json:
         print(json.dumps(evaluation.as_dict()))
     else:

@@ -22,6 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from bintrack.evaluation import metrics
+from bintrack.evaluation.clear_mot import Frame, clear_mot
 from bintrack.errors import CommandError
 from bintrack.formats import (
     OBJECTS_HEADER,
@@ -38,6 +39,8 @@ from bintrack.formats import (
 )
 
 DEFAULT_GOSPA_C = 10.0
+DEFAULT_HIT = 1.5
+"""CLEAR MOT hit threshold, m (Milan et al.'s for people on the floor)"""
 
 class Figure(NamedTuple):
     """One figure of an evaluation: ``key`` in :meth:`Evaluation.as_dict`, a human ``label``,
@@ -140,10 +143,16 @@ def read_result(path: Path | str) -> tuple[str, list[TrackRow] | list[ObjectRow]
 
 # --------------------------------------------------------------------------- scoring
 
-def evaluate(dataset: Dataset | Path | str, result_path: Path | str, *, gospa_c: float = DEFAULT_GOSPA_C) -> Evaluation:
+def evaluate(dataset: Dataset | Path | str, result_path: Path | str, *, gospa_c: float = DEFAULT_GOSPA_C,
+             hit: float | None = None, matching: str = "greedy",
+             area: tuple[float, float, float, float] | None = None) -> Evaluation:
     """Score the result file ``result_path`` against ``dataset``'s truth.csv.
 
-    ``gospa_c`` is GOSPA's cut-off in the dataset's units (p = 2, α = 2). Raises
+    ``gospa_c`` is GOSPA's cut-off in the dataset's units (p = 2, α = 2). Multi-target results
+    also get CLEAR MOT (:mod:`.clear_mot`) with hit threshold ``hit`` (units; default 1.5 m in
+    the dataset's units) and ``matching`` ("greedy" or "hungarian"). With ``area`` (xmin, ymin,
+    xmax, ymax, units) targets and tracks outside it are left out of the multi-target scores, as
+    Milan et al. score only the tracking area. Raises
     :class:`CommandError` when there is no truth to score against and :class:`FormatError`
     for a malformed file.
     """
@@ -170,8 +179,11 @@ def evaluate(dataset: Dataset | Path | str, result_path: Path | str, *, gospa_c:
             main = ("location_error_over_R_mean",) if R is not None else ("location_error_mean",)
         return Evaluation(mode="single", figures=figures, main=main, tracks=tuple(rows), objects=(), series=series,
                           **common)
-    figures, series = _multi_figures(rows, truth, R, units, gospa_c)
-    return Evaluation(mode="multi", figures=figures, main=("gospa_mean",), tracks=tuple(rows), objects=(), series=series,
+    if hit is None:
+        hit = DEFAULT_HIT / dataset.deployment.metres_per_unit
+    frames = _frames(rows, truth, dataset.deployment, area)
+    figures, series = _multi_figures(rows, truth, R, units, gospa_c, frames, hit, matching)
+    return Evaluation(mode="multi", figures=figures, main=("gospa_mean", "mota"), tracks=tuple(rows), objects=(), series=series,
                       **common)
 
 def _location_figures(rows, truth, R, units, to: str) -> tuple[list[Figure], Series]:
@@ -222,8 +234,48 @@ def _single_figures(rows, path: metrics.TruthPath, R, units) -> tuple[tuple[Figu
                 series = Series("heading error (deg)", np.array([r.t for r in timed]), np.degrees(heading_all))
     return tuple(figures), (series,)
 
-def _multi_figures(rows, truth, R, units, c: float) -> tuple[tuple[Figure, ...], tuple[Series, ...]]:
-    scores = metrics.multi_target_scores(rows, truth, c)
+def _frames(rows, truth, deployment, area) -> list[Frame]:
+    """The multi-target frames: every time of ``rows`` and, where the sensors are sampled every
+    P s, every k·P within the truth's time span (so that a frame without tracks counts), with
+    the targets existing then and the tracks of that time, both inside ``area`` if given."""
+    times = {r.t for r in rows}
+    periods = [s.period for s in deployment.sensors if getattr(s, "period", None)]
+    if periods:
+        period = max(periods)
+        start = min(p.start for p in truth.values())
+        end = max(p.end for p in truth.values())
+        k0, k1 = int(np.ceil(start / period - 1e-9)), int(np.floor(end / period + 1e-9))
+        times.update(round(k * period, 9) for k in range(k0, k1 + 1))
+    by_time: dict[float, list[TrackRow]] = {}
+    for r in rows:
+        if r.x is not None:
+            by_time.setdefault(r.t, []).append(r)
+
+    def inside(x, y) -> bool:
+        return area is None or (area[0] <= x <= area[2] and area[1] <= y <= area[3])
+
+    frames = []
+    for t in sorted(times):
+        targets, txy = [], []
+        for k, path in truth.items():
+            if path.exists(t):
+                x, y = path.position(t)
+                if inside(x, y):
+                    targets.append(k)
+                    txy.append((x, y))
+        tracks = [r for r in sorted(by_time.get(t, []), key=lambda r: r.track) if inside(r.x, r.y)]
+        frames.append(Frame(t, tuple(targets), np.array(txy, dtype=float).reshape(-1, 2),
+                            tuple(r.track for r in tracks), np.array([(r.x, r.y) for r in tracks], dtype=float).reshape(-1, 2)))
+    return frames
+
+
+def _multi_figures(rows, truth, R, units, c: float, frames: list[Frame], hit: float,
+                   matching: str) -> tuple[tuple[Figure, ...], tuple[Series, ...]]:
+    switches = metrics.multi_target_scores(rows, truth, c).identity_switches
+    scans = tuple(metrics.Scan(f.t, metrics.gospa(f.track_xy, f.target_xy, c), len(f.tracks), len(f.targets))
+                  for f in frames)
+    scores = metrics.MultiTargetScores(c, 2.0, scans, switches)
+    mot = clear_mot(frames, hit, matching)
     figures = [
         Figure("targets", "targets in truth", len(truth)),
         Figure("tracks", "track ids in the result", len({r.track for r in rows})),
@@ -238,6 +290,17 @@ def _multi_figures(rows, truth, R, units, c: float) -> tuple[tuple[Figure, ...],
         Figure("target_count_error_mean", "|tracks - targets| per scan, mean", scores.count_error_mean),
         Figure("target_count_correct", "scans with the right number", scores.count_correct),
         Figure("identity_switches", "identity switches", scores.identity_switches),
+        Figure("hit_threshold", f"CLEAR MOT hit threshold ({matching} matching)", hit, units),
+        Figure("frames", "CLEAR MOT frames", mot.frames),
+        Figure("mota", "MOTA", mot.mota),
+        Figure("motp", "MOTP (1 - mean distance / threshold)", mot.motp),
+        Figure("motp_distance", "matched distance, mean", mot.motp_distance, units),
+        Figure("recall", "recall", mot.recall),
+        Figure("precision", "precision", mot.precision),
+        Figure("false_positives", "false positives (FP)", mot.false_positives),
+        Figure("misses", "misses (FN)", mot.misses),
+        Figure("mismatches", "identity switches (CLEAR MOT)", mot.switches),
+        Figure("idf1", "IDF1", mot.idf1),
     ]
     location, _ = _location_figures(rows, truth, R, units, "nearest target")
     figures += location[1:]  # the row count is already in the table
