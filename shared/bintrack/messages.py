@@ -90,6 +90,12 @@ class _RangeSensor(_SensorBase):
     pd: float | None = Field(None, ge=0, le=1, description="detection probability per sample")
     pfa: float | None = Field(None, ge=0, le=1, description="false-alarm probability per sample")
     period: float | None = Field(None, gt=0, description="sampling period, s; absent = event-driven")
+    hold: float | None = Field(
+        None, ge=0, description="real PIR: s the output stays on after the last trigger (absent: the papers' "
+        "presence disk, no hold)")
+    still: float | None = Field(
+        None, ge=0, le=1, description="real PIR, which sees motion: pd of a person standing still as a fraction of pd "
+        "(absent: 1, a presence sensor)")
 
     @model_validator(mode="after")
     def _inner_within_outer(self):

@@ -20,6 +20,7 @@ SUBCOMMANDS = {
     "simulate": ("bintrack.cli.simulate_command", "write a simulated dataset for a named paper scenario"),
     "track": ("bintrack.cli.track_command", "run a tracker offline over a dataset folder and write tracks.csv"),
     "import": ("bintrack.cli.import_command", "a recording of binary sensors (sample matrix, sensor table, CVML truth) as a dataset folder"),
+    "calibrate": ("bintrack.cli.calibrate_command", "fit each sensor's footprint, pd, pfa and hold time to a recording; write the fitted dataset"),
     "eval": ("bintrack.cli.eval_command", "score tracks.csv or objects.csv against the dataset's truth.csv"),
     "schema": ("bintrack.cli.schema_command", "print the JSON Schema of every bus message"),
     "up": ("bintrack.cli.up_command", "the whole stack on this machine: router, services, and the replay of DIR"),

@@ -1,0 +1,244 @@
+"""Each disk sensor's footprint radius, pd, pfa and hold time estimated from its detections alone
+(no truth), with bootstrap intervals; and, where truth exists, the same parameters fitted to it
+for comparison.
+
+The sensor model (the one :mod:`bintrack.sim` simulates for real PIR): sensor i reports 1 in a
+sample with probability pd_i while a person is within r_i of it (or was, within the last hold_i
+seconds), and with probability pfa_i otherwise.
+
+Unsupervised estimates (sampling period P):
+
+* hold: an on-run (consecutive samples reporting 1) lasts at least H + 1 samples when the output
+  is held H·P s after a trigger. H + 1 is the shortest run length that carries at least 5 % of
+  the sensor's runs (pooled over sensors when a sensor has fewer than ``MIN_RUNS`` runs).
+* pd: a person passing through the footprint is seen in each sample with probability pd, so an
+  on-run minus its held part is geometric, P(G = g) = (1 − pd)·pd^(g − 1), whose MLE is
+  pd = 1 − 1/mean(G); per sensor it is shrunk towards the pooled value with ``PSEUDO_RUNS`` runs.
+* pfa: firings of a sensor while no other sensor within ``QUIET_RANGES`` stated ranges of it
+  fires for ±``QUIET_SAMPLES`` samples (isolated firings), over the samples where they are quiet.
+* footprint radius: co-firing with the neighbours at known distances. Given that sensor i fires,
+  the person is somewhere in its footprint, so neighbour j (at distance d) fires in the same
+  sample with probability c_ij = pd_j·A(d, r)/(π r²) + b, A the area of the lens of two disks of
+  radius r at distance d, b the background (other people, false alarms). r and b are fitted by
+  weighted least squares to the pairs within ``PAIR_RANGES`` stated ranges, pooled, then r per
+  sensor over the pairs it is in (shrunk towards the pooled r).
+
+Intervals: a moving-block bootstrap over time (blocks of ``BLOCK`` samples), 2.5 % and 97.5 %.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize, minimize_scalar
+from scipy.spatial.distance import cdist
+
+from bintrack.calibration.sample_series import SampleSeries
+
+MIN_RUNS = 8
+PSEUDO_RUNS = 5.0
+QUIET_RANGES = 4.0
+QUIET_SAMPLES = 2
+PAIR_RANGES = 5.0
+BLOCK = 20
+PFA_FLOOR = 1e-4
+"""no estimate below this (per sample): a finite weight for a detection in the fusion"""
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A value and its 95 % interval (None when not computed)."""
+
+    value: float
+    low: float | None = None
+    high: float | None = None
+
+
+@dataclass(frozen=True)
+class SensorFit:
+    """One sensor's fitted model: radius (units), pd and pfa (per sample), hold (s); ``still``
+    (pd of a person standing still, as a fraction of pd) only from the truth."""
+
+    id: str
+    range: Estimate
+    pd: Estimate
+    pfa: Estimate
+    hold: Estimate
+    still: Estimate | None = None
+
+
+@dataclass(frozen=True)
+class Fit:
+    """The fit of every sensor and the pooled one (``pooled.id`` is ``"all"``)."""
+
+    method: str
+    sensors: tuple[SensorFit, ...]
+    pooled: SensorFit
+
+
+def _runs(column: np.ndarray) -> np.ndarray:
+    """Lengths of the on-runs of a 0/1 column that neither start at the first sample nor end at the last."""
+    padded = np.concatenate(([0], column.astype(np.int8), [0]))
+    edges = np.diff(padded)
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    keep = (starts > 0) & (ends < len(column))
+    return (ends - starts)[keep]
+
+
+def _hold_samples(runs: np.ndarray) -> int:
+    if runs.size == 0:
+        return 0
+    counts = np.bincount(runs)
+    return int(np.flatnonzero(counts >= max(1.0, 0.05 * runs.size))[0]) - 1
+
+
+def lens_fraction(d, r) -> np.ndarray:
+    """A(d, r)/(π r²): the fraction of a disk of radius r that a second one at distance d overlaps."""
+    d = np.minimum(np.asarray(d, dtype=float), 2 * r)
+    area = 2 * r * r * np.arccos(d / (2 * r)) - 0.5 * d * np.sqrt(np.maximum(4 * r * r - d * d, 0.0))
+    return area / (math.pi * r * r)
+
+
+def _point_fit(status: np.ndarray, positions: np.ndarray, stated: float, period: float) -> tuple[np.ndarray, ...]:
+    """Per-sensor and pooled (last entry) radius, pd, pfa, hold (s) of one sample matrix."""
+    n = status.shape[1]
+    runs = [_runs(status[:, i]) for i in range(n)]
+    pooled_runs = np.concatenate(runs) if runs else np.zeros(0, int)
+    h0 = max(_hold_samples(pooled_runs), 0)
+    hold = np.array([_hold_samples(r) if r.size >= MIN_RUNS else h0 for r in runs] + [h0], dtype=float)
+    hold = np.maximum(hold, 0)
+    g_all = pooled_runs - h0
+    g_all = g_all[g_all >= 1]
+    pd0 = 1.0 - 1.0 / g_all.mean() if g_all.size else 0.5
+    pd0 = min(max(pd0, 0.05), 0.99)
+    pd = []
+    for i in range(n):
+        g = runs[i] - int(hold[i])
+        g = g[g >= 1]
+        pd.append(1.0 - (g.size + PSEUDO_RUNS) / (g.sum() + PSEUDO_RUNS / (1.0 - pd0)))
+    pd = np.clip(np.array(pd + [pd0]), 0.05, 0.99)
+
+    distance = cdist(positions, positions)
+    near = (distance < QUIET_RANGES * stated) & ~np.eye(n, dtype=bool)
+    window = np.ones(2 * QUIET_SAMPLES + 1)
+    busy = np.array([np.convolve(status[:, j], window, mode="same") > 0 for j in range(n)]).T  # k × j
+    quiet_on, quiet_n = np.zeros(n), np.zeros(n)
+    for i in range(n):
+        quiet = ~busy[:, near[i]].any(axis=1)
+        quiet_n[i] = quiet.sum()
+        quiet_on[i] = status[quiet, i].sum()
+    pfa0 = max(quiet_on.sum() / max(quiet_n.sum(), 1.0), PFA_FLOOR)
+    pfa = np.maximum((quiet_on + 20.0 * pfa0) / (quiet_n + 20.0), PFA_FLOOR)
+    pfa = np.append(pfa, pfa0)
+
+    on = status.sum(axis=0).astype(float)
+    co = status.T.astype(float) @ status.astype(float)
+    ii, jj = np.nonzero((distance < PAIR_RANGES * stated) & ~np.eye(n, dtype=bool) & (on[:, None] > 0))
+    d, c, w = distance[ii, jj], co[ii, jj] / np.maximum(on[ii], 1), on[ii]
+    pdj = pd[jj]
+
+    def sse(r, b, mask=slice(None)):
+        return float(np.sum(w[mask] * (c[mask] - (pdj[mask] * lens_fraction(d[mask], r) + b)) ** 2))
+
+    if d.size:
+        res = minimize(lambda p: sse(p[0], p[1]), x0=[2 * stated, 0.05], bounds=[(0.2 * stated, 10 * stated), (0.0, 0.9)],
+                       method="L-BFGS-B")
+        r0, b0 = float(res.x[0]), float(res.x[1])
+    else:
+        r0, b0 = stated, 0.0
+    radius = []
+    prior = 0.05 * max(w.sum(), 1.0) / max(n, 1)  # weight of the pooled radius, as a few pairs' worth
+    for i in range(n):
+        mask = (ii == i) | (jj == i)
+        if not mask.any():
+            radius.append(r0)
+            continue
+        fit = minimize_scalar(lambda r: sse(r, b0, mask) + prior * ((r - r0) / r0) ** 2,
+                              bounds=(0.2 * stated, 10 * stated), method="bounded")
+        radius.append(float(fit.x))
+    radius = np.array(radius + [r0])
+    return radius, pd, pfa, hold * period
+
+
+def calibrate(series: SampleSeries, stated_range: float, *, boot: int = 200, seed: int = 0) -> Fit:
+    """The unsupervised fit of every sensor of ``series`` (see the module's text); ``stated_range``
+    (units) is the only prior: the scale of the neighbourhoods and where the search starts."""
+    if not stated_range > 0:
+        raise ValueError(f"stated range must be positive, got {stated_range}")
+    status, positions, period = series.status, series.positions, series.period
+    point = _point_fit(status, positions, stated_range, period)
+    rng = np.random.default_rng(seed)
+    k = len(status)
+    block = min(BLOCK, k)
+    draws = []
+    for _ in range(boot):
+        starts = rng.integers(0, k - block + 1, size=math.ceil(k / block))
+        sample = np.concatenate([status[s:s + block] for s in starts])[:k]
+        draws.append(np.array(_point_fit(sample, positions, stated_range, period)))
+    draws = np.array(draws) if draws else None  # boot × 4 × (n + 1)
+
+    def est(p: int, i: int) -> Estimate:
+        if draws is None:
+            return Estimate(float(point[p][i]))
+        lo, hi = np.percentile(draws[:, p, i], [2.5, 97.5])
+        return Estimate(float(point[p][i]), float(lo), float(hi))
+
+    ids = list(series.ids) + ["all"]
+    fits = [SensorFit(ids[i], est(0, i), est(1, i), est(2, i), est(3, i)) for i in range(len(ids))]
+    return Fit("detections", tuple(fits[:-1]), fits[-1])
+
+
+def calibrate_supervised(series: SampleSeries, truth: dict[str, tuple[np.ndarray, np.ndarray]],
+                         max_range: float, *, still_speed: float = 0.3) -> Fit:
+    """The same model fitted to the truth, per sensor by maximum likelihood: for each hold H·P
+    (H = 0..4) and radius r (steps of 1/40 of ``max_range``, units), pd and pfa are the firing
+    rates inside and outside "a person within r in the last H·P s", and the best pair (H, r) is
+    kept. ``truth``: target → (times s, positions (n, 2) units), linearly interpolated, the
+    target existing from its first to its last time. ``still``: the firing rate inside of people
+    slower than ``still_speed`` units/s over that of the others."""
+    times = series.times
+    n = len(series.ids)
+    dist = np.full((len(times), n), np.inf)
+    slow = np.zeros((len(times), n), dtype=bool)
+    for t, xy in truth.values():
+        alive = (times >= t[0] - 1e-6) & (times <= t[-1] + 1e-6)
+        if not alive.any():
+            continue
+        tt = times[alive]
+        p = np.stack([np.interp(tt, t, xy[:, 0]), np.interp(tt, t, xy[:, 1])], axis=1)
+        v = np.gradient(p, series.period, axis=0) if len(tt) > 1 else np.zeros_like(p)
+        dd = cdist(p, series.positions)
+        closer = dd < dist[alive]
+        sub = dist[alive]
+        sub[closer] = dd[closer]
+        dist[alive] = sub
+        s = slow[alive]
+        s[closer] = (np.hypot(v[:, 0], v[:, 1])[:, None] < still_speed).repeat(n, axis=1)[closer]
+        slow[alive] = s
+    radii = np.linspace(max_range / 40, max_range, 40)
+    fits, pooled = [], {"range": [], "pd": [], "pfa": [], "hold": [], "still": []}
+    for i in range(n):
+        y = series.status[:, i].astype(bool)
+        best = None
+        for h in range(5):
+            dh = np.array([dist[max(0, k - h):k + 1, i].min() for k in range(len(times))])
+            for r in radii:
+                inside = dh < r
+                a, b = inside.sum(), (~inside).sum()
+                pd = min(max(y[inside].mean() if a else 0.5, 1e-3), 1 - 1e-3)
+                pfa = min(max(y[~inside].mean() if b else PFA_FLOOR, PFA_FLOOR), 1 - 1e-3)
+                ll = (y[inside].sum() * math.log(pd) + (a - y[inside].sum()) * math.log(1 - pd)
+                      + y[~inside].sum() * math.log(pfa) + (b - y[~inside].sum()) * math.log(1 - pfa))
+                if best is None or ll > best[0]:
+                    best = (ll, h, float(r), pd, pfa, inside)
+        _, h, r, pd, pfa, inside = best
+        moving, still = inside & ~slow[:, i], inside & slow[:, i]
+        ratio = (y[still].mean() / y[moving].mean()) if still.sum() >= 5 and y[moving].mean() > 0 else 1.0
+        fits.append(SensorFit(series.ids[i], Estimate(r), Estimate(pd), Estimate(pfa), Estimate(h * series.period),
+                              Estimate(float(min(ratio, 1.0)))))
+        for key, value in (("range", r), ("pd", pd), ("pfa", pfa), ("hold", h * series.period), ("still", min(ratio, 1.0))):
+            pooled[key].append(value)
+    med = {k: Estimate(float(np.median(v))) for k, v in pooled.items()}
+    return Fit("truth", tuple(fits), SensorFit("all", med["range"], med["pd"], med["pfa"], med["hold"], med["still"]))
