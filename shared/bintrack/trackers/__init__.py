@@ -92,18 +92,21 @@ def _motion(kind: str) -> Callable[[Deployment, TrackerOptions], Tracker]:
 
 
 def _mcmcda(d: Deployment, o: TrackerOptions) -> Tracker:
+    from bintrack.trackers.multi.fusion_config import FusionConfig
     from bintrack.trackers.multi.mcmcda import MCMCDAConfig
+    from bintrack.trackers.multi.pir_settings import pir_settings
     from bintrack.trackers.multi.tracker import MCMCDATracker
 
+    fusion, base = pir_settings(d, FusionConfig(), MCMCDAConfig())
     speed = {}
     if o.speed is not None:
         fastest = o.speed * d.metres_per_unit  # MCMCDAConfig is in metres; --speed in the deployment's units
         speed = {"max_speed": fastest, "initial_speed": fastest / 2}
-    config = replace(MCMCDAConfig(), seed=o.seed, **speed,
+    config = replace(base, seed=o.seed, **speed,
                      **({"n_mc": o.n_mc} if o.n_mc is not None else {}),
                      **({"window": o.scans} if o.scans is not None else {}))
     peer = make_tracker(o.estimates, d, replace(o, estimates=None)) if o.estimates is not None else None
-    return MCMCDATracker(d, config=config, peer=peer)
+    return MCMCDATracker(d, fusion=fusion, config=config, peer=peer)
 
 
 _PEER: dict[str, Callable[[Deployment, TrackerOptions], Tracker]] = {
