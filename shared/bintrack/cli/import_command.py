@@ -34,6 +34,16 @@ def _columns(text: str) -> list[int]:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _probability(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"must be a probability in [0, 1], got {text!r}")
+    return value
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("matrix", metavar="MATRIX", help="binary samples: one row per period, one column per sensor "
                         "(whitespace or commas; non-zero = detecting)")
@@ -49,6 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="unit of the table's x, y (default: the suffix of its field names, e.g. x_mm)")
     parser.add_argument("--range", type=positive_float, required=True, metavar="M",
                         help="sensing (footprint) radius, m, as the hardware states it")
+    parser.add_argument("--pd", type=_probability, help="detection probability per sample to state for every sensor (default: none)")
+    parser.add_argument("--pfa", type=_probability, help="false-alarm probability per sample to state for every sensor (default: none)")
     parser.add_argument("--region", type=_region, metavar="XMIN,YMIN,XMAX,YMAX",
                         help="surveillance region, m (default: the sensors' bounding box grown by the range)")
     parser.add_argument("--name", help="deployment name (default: the name of DIR)")
@@ -76,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     deployment = Deployment(
         name=args.name or out.resolve().name, units="m",
         region=Region(xmin=xmin, ymin=ymin, xmax=xmax, ymax=ymax),
-        sensors=[DiskSensor(id=s.id, x=round(s.x, 6), y=round(s.y, 6), range=args.range, period=args.period)
+        sensors=[DiskSensor(id=s.id, x=round(s.x, 6), y=round(s.y, 6), range=args.range, period=args.period,
+                            pd=args.pd, pfa=args.pfa)
                  for s in sensors])
     truth = None
     if args.truth:

@@ -53,7 +53,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     lines = [f"  {name}: {' '.join(option_flag(o) for o in scenario_options(name))}" for name in SCENARIOS]
     parser.epilog = "options each scenario takes:\n" + "\n".join(lines)
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
-    parser.add_argument("scenario", metavar="SCENARIO", help="one of: " + ", ".join(SCENARIOS))
+    parser.add_argument("scenario", metavar="SCENARIO", help="one of: " + ", ".join(SCENARIOS)
+                        + "; or recording (with --like DIR): DIR's people walked again through DIR's sensors")
+    parser.add_argument("--like", metavar="DIR", help="recording: the dataset (deployment.json, events.csv, truth.csv) "
+                        "whose truth paths and sensor models to simulate, e.g. the output of bintrack calibrate")
     parser.add_argument("--out", required=True, metavar="DIR", help="dataset folder to write (created if needed)")
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="random seed (default 0)")
     for name, kind, metavar, text in OPTIONS:
@@ -61,6 +64,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--regions", type=region_grid, metavar="CxR|N",
                         help="name regions in deployment.json: the field cut into C columns × R rows of rectangles "
                         "(N: the most square grid of N), each served by a base station of its own")
+
+
+def like_scenario(path: str | None, options: dict):
+    """The ``recording`` scenario of the dataset at ``path``: its sensors sampled over its
+    events' time span while its truth's people walk."""
+    from bintrack.formats import open_dataset
+    from bintrack.sim.recorded_paths import recording_scenario
+
+    if path is None:
+        raise CommandError("the scenario recording needs --like DIR")
+    given = [option_flag(k) for k, v in options.items() if v is not None]
+    if given:
+        raise CommandError(f"{given[0]} does not apply to scenario recording (it takes --like)")
+    dataset = open_dataset(path)
+    if not dataset.has_truth:
+        raise CommandError(f"--like {path}: no truth.csv, no paths to walk")
+    times = [e.t for e in dataset.events()]
+    truth = dataset.truth()
+    start = min([0.0, *times[:1]])
+    end = max([*times[-1:], *(r.t for r in truth)])
+    return recording_scenario(dataset.deployment, truth, (start, end))
 
 
 def region_grid(text: str) -> tuple[int, int]:
@@ -82,10 +106,15 @@ def run(args: argparse.Namespace) -> int:
     for name, value in options.items():
         if isinstance(value, float) and not math.isfinite(value):
             raise CommandError(f"{option_flag(name)} must be a finite number, got {value}")
-    try:
-        scenario = build_scenario(args.scenario, args.seed, **options)
-    except ScenarioError as exc:
-        raise CommandError(str(exc)) from None
+    if args.scenario == "recording":
+        scenario = like_scenario(args.like, options)
+    elif args.like is not None:
+        raise CommandError(f"--like applies to the scenario recording, not {args.scenario}")
+    else:
+        try:
+            scenario = build_scenario(args.scenario, args.seed, **options)
+        except ScenarioError as exc:
+            raise CommandError(str(exc)) from None
     out = output_folder(Path(args.out))  # options first: a refused run leaves no folder behind
     total = len(scenario.sensors)
     progress = Progress("simulate: sensors", total, enabled=None if total >= PROGRESS_MIN_SENSORS else False)

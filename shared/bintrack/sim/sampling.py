@@ -19,6 +19,9 @@ from bintrack.messages import DiskSensor, MotionSensor, SectorSensor
 from bintrack.sensing import DiskModel, MotionModel, SectorModel, model_for
 from bintrack.sim.trajectories import Trajectory
 
+PIR_WALKING_SPEED = 0.5
+"""units/s: a PIR sensor sees a person at least this fast with its full pd"""
+
 
 def sample_times(phase: float, period: float, t_start: float, t_end: float) -> np.ndarray:
     """The times phase + k·period (s, integer k) that lie in [t_start, t_end]."""
@@ -37,6 +40,8 @@ def presence_samples(sensor: DiskSensor | SectorSensor, trajectories: Sequence[T
     model = model_for(sensor)
     if not isinstance(model, DiskModel):
         raise TypeError(f"sensor {sensor.id!r} is not a disk or sector sensor")
+    if isinstance(sensor, DiskSensor) and not isinstance(sensor, SectorSensor) and (sensor.hold is not None or sensor.still is not None):
+        return pir_samples(sensor, trajectories, times, rng)
     pd = 1.0 if sensor.pd is None else sensor.pd
     pfa = 0.0 if sensor.pfa is None else sensor.pfa
     sector = isinstance(model, SectorModel)
@@ -59,6 +64,37 @@ def presence_samples(sensor: DiskSensor | SectorSensor, trajectories: Sequence[T
     else:
         value[alarm] = 1
     return value
+
+
+def pir_samples(sensor: DiskSensor | SectorSensor, trajectories: Sequence[Trajectory], times: np.ndarray,
+                rng: np.random.Generator) -> np.ndarray:
+    """Sampled reports (1/0) of a real PIR sensor (a sensor with ``hold`` or ``still``) at ``times`` (s).
+
+    A PIR sensor sees motion, not presence: target j within the footprint triggers it in a
+    sample with probability pd·P_detect(d_j)·m(v_j), where m(v) = still + (1 − still)·min(1, v/V)
+    falls from 1 for a walking person (speed ≥ V = ``PIR_WALKING_SPEED`` units/s) to ``still``
+    for one standing still; a false trigger occurs with probability pfa. After a trigger the
+    output stays on for ``hold`` s (it reports 1 at every sample within hold of a trigger)."""
+    model = model_for(sensor)
+    pd = 1.0 if sensor.pd is None else sensor.pd
+    pfa = 0.0 if sensor.pfa is None else sensor.pfa
+    still = 1.0 if sensor.still is None else sensor.still
+    trigger = np.zeros(times.shape, dtype=bool)
+    for trajectory in trajectories:
+        alive = trajectory.alive(times)
+        p = np.zeros(times.shape)
+        if alive.any():
+            speed = np.hypot(*trajectory.velocity(times[alive]).T)
+            motion = still + (1.0 - still) * np.minimum(1.0, speed / PIR_WALKING_SPEED)
+            p[alive] = pd * model.detect_probability(trajectory.position(times[alive])) * motion
+        trigger |= rng.random(times.shape) < p
+    trigger |= rng.random(times.shape) < pfa
+    if not sensor.hold:
+        return trigger.astype(int)
+    fired = times[trigger]
+    k = np.searchsorted(fired, times, side="right") - 1  # the last trigger at or before each sample
+    last = np.where(k >= 0, fired[np.maximum(k, 0)], -np.inf)
+    return (times - last < sensor.hold + 1e-9).astype(int)
 
 
 def motion_samples(sensor: MotionSensor, trajectories: Sequence[Trajectory],
