@@ -11,12 +11,17 @@ Unsupervised estimates (sampling period P):
 * hold: an on-run (consecutive samples reporting 1) lasts at least H + 1 samples when the output
   is held H·P s after a trigger. H + 1 is the shortest run length that carries at least 5 % of
   the sensor's runs (pooled over sensors when a sensor has fewer than ``MIN_RUNS`` runs).
-* pd: a person passing through the footprint is seen in each sample with probability pd, so an
-  on-run minus its held part is geometric, P(G = g) = (1 − pd)·pd^(g − 1), whose MLE is
-  pd = 1 − 1/mean(G); per sensor it is shrunk towards the pooled value with ``PSEUDO_RUNS`` runs.
+* pd: a person passing through the footprint is seen in each sample with probability pd. Without
+  hold, a sample between two firings of the same sensor is, nearly always, a sample in which
+  the person is still there, so pd = n₁₁₁/(n₁₁₁ + n₁₀₁) over the triplets of samples (1, x, 1);
+  shrunk per sensor towards the pooled value with ``PSEUDO_RUNS`` pseudo-triplets. With a hold
+  of H ≥ 1 samples a miss hides inside the held output, and pd comes from the on-runs: an
+  on-run minus its held part is geometric, P(G = g) = (1 − pd)·pd^(g − 1), MLE pd = 1 − 1/mean(G)
+  (biased low where passages are short, since a run ends when the person leaves).
 * pfa: firings of a sensor while no other sensor within ``QUIET_RANGES`` stated ranges of it
   fires for ±``QUIET_SAMPLES`` samples (isolated firings), over the samples where they are quiet.
-* footprint radius: co-firing with the neighbours at known distances. Given that sensor i fires,
+* footprint radius: co-firing with the neighbours at known distances, over the triggered samples
+  (each on-run without its held last H samples). Given that sensor i fires,
   the person is somewhere in its footprint, so neighbour j (at distance d) fires in the same
   sample with probability c_ij = pd_j·A(d, r)/(π r²) + b, A the area of the lens of two disks of
   radius r at distance d, b the background (other people, false alarms). r and b are fitted by
@@ -94,6 +99,18 @@ def _hold_samples(runs: np.ndarray) -> int:
     return int(np.flatnonzero(counts >= max(1.0, 0.05 * runs.size))[0]) - 1
 
 
+def _without_hold(status: np.ndarray, hold: np.ndarray) -> np.ndarray:
+    """The samples that were triggered rather than held: each on-run of sensor i loses its last
+    ``hold[i]`` samples (at least its first sample stays)."""
+    out = status.copy()
+    for i in np.flatnonzero(hold > 0):
+        padded = np.concatenate(([0], status[:, i].astype(np.int8), [0]))
+        edges = np.diff(padded)
+        for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+            out[max(a + 1, b - hold[i]):b, i] = 0
+    return out
+
+
 def lens_fraction(d, r) -> np.ndarray:
     """A(d, r)/(π r²): the fraction of a disk of radius r that a second one at distance d overlaps."""
     d = np.minimum(np.asarray(d, dtype=float), 2 * r)
@@ -119,6 +136,16 @@ def _point_fit(status: np.ndarray, positions: np.ndarray, stated: float, period:
         g = g[g >= 1]
         pd.append(1.0 - (g.size + PSEUDO_RUNS) / (g.sum() + PSEUDO_RUNS / (1.0 - pd0)))
     pd = np.clip(np.array(pd + [pd0]), 0.05, 0.99)
+    if len(status) >= 3:
+        # without hold, a sample between two firings is a miss (1, 0, 1) or a hit (1, 1, 1) of a
+        # person still there: pd = n111 / (n111 + n101), unbiased by how long a passage lasts
+        a, b, c = status[:-2], status[1:-1], status[2:]
+        n111 = ((a == 1) & (b == 1) & (c == 1)).sum(axis=0).astype(float)
+        n101 = ((a == 1) & (b == 0) & (c == 1)).sum(axis=0).astype(float)
+        if n111.sum() + n101.sum() > 0:
+            t0 = n111.sum() / (n111.sum() + n101.sum())
+            triplet = np.append((n111 + PSEUDO_RUNS * t0) / (n111 + n101 + PSEUDO_RUNS), t0)
+            pd = np.where(hold == 0, np.clip(triplet, 0.05, 0.99), pd)
 
     distance = cdist(positions, positions)
     near = (distance < QUIET_RANGES * stated) & ~np.eye(n, dtype=bool)
@@ -133,8 +160,9 @@ def _point_fit(status: np.ndarray, positions: np.ndarray, stated: float, period:
     pfa = np.maximum((quiet_on + 20.0 * pfa0) / (quiet_n + 20.0), PFA_FLOOR)
     pfa = np.append(pfa, pfa0)
 
-    on = status.sum(axis=0).astype(float)
-    co = status.T.astype(float) @ status.astype(float)
+    triggers = _without_hold(status, hold[:-1].astype(int))
+    on = triggers.sum(axis=0).astype(float)
+    co = triggers.T.astype(float) @ triggers.astype(float)
     ii, jj = np.nonzero((distance < PAIR_RANGES * stated) & ~np.eye(n, dtype=bool) & (on[:, None] > 0))
     d, c, w = distance[ii, jj], co[ii, jj] / np.maximum(on[ii], 1), on[ii]
     pdj = pd[jj]
