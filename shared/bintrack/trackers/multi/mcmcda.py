@@ -116,6 +116,13 @@ class MCMCDAConfig:
     """s: a new track takes the identity of a track last shown at most this long ago (and
     before its first report), if that report lies within ``gate_sigmas`` of the old track's
     prediction"""
+    birth_edge: float | None = None
+    """real PIR: people are born within this distance (units) of ``birth_area``'s edge (the
+    room's doors are on its walls); None: anywhere (the paper's uniform birth)"""
+    birth_area: tuple[float, float, float, float] | None = None
+    """xmin, ymin, xmax, ymax (units) of the room for ``birth_edge``; None: no room"""
+    birth_inside: float = 0.1
+    """λ_b farther than ``birth_edge`` from the edge, as a fraction of λ_b near it"""
 
     def in_units(self, metres_per_unit: float) -> MCMCDAConfig:
         """This configuration, read as metres and seconds, in units of ``metres_per_unit`` m:
@@ -124,7 +131,9 @@ class MCMCDAConfig:
         k = 1.0 / metres_per_unit
         return replace(self, process_noise=self.process_noise * k * k, extra_variance=self.extra_variance * k * k,
                        initial_speed=self.initial_speed * k, max_speed=self.max_speed * k,
-                       false_alarm_rate=self.false_alarm_rate / (k * k), birth_rate=self.birth_rate / (k * k))
+                       false_alarm_rate=self.false_alarm_rate / (k * k), birth_rate=self.birth_rate / (k * k),
+                       birth_edge=None if self.birth_edge is None else self.birth_edge * k,
+                       birth_area=None if self.birth_area is None else tuple(v * k for v in self.birth_area))
 
     def __post_init__(self):
         checks = [("window", self.window >= 2), ("n_mc", self.n_mc >= 1), ("chains", self.chains >= 1), ("max_misses", self.max_misses >= 0),
@@ -379,7 +388,7 @@ class OnlineMCMCDA:
             rep = self._reports[reports[0]]
             sx, sy = self._initial(rep)
             # a new track's first report: a birth (λ_b, uniform position) that is detected
-            done = sx, sy, rep.scan, rep.t, self._log_lb + math.log(c.pd) - self._log_lf
+            done = sx, sy, rep.scan, rep.t, self._log_birth(rep) + math.log(c.pd) - self._log_lf
         else:
             sx, sy, last_scan, last_t, score = self._filtered(anchor, reports[:-1])
             rep = self._reports[reports[-1]]
@@ -389,6 +398,16 @@ class OnlineMCMCDA:
             done = sx, sy, rep.scan, rep.t, score
         self._filters[key] = done
         return done
+
+    def _log_birth(self, rep: _Report) -> float:
+        """log λ_b at a new track's first report: uniform, or (``birth_edge``) lower inside the room."""
+        c = self.config
+        if c.birth_edge is None or c.birth_area is None:
+            return self._log_lb
+        xmin, ymin, xmax, ymax = c.birth_area
+        if min(rep.x - xmin, xmax - rep.x, rep.y - ymin, ymax - rep.y) <= c.birth_edge:
+            return self._log_lb
+        return self._log_lb + math.log(c.birth_inside)
 
     def _shared_ok(self, track: _Track) -> bool:
         """A new track may not begin with a shared report (a copy is no evidence of a target)."""

@@ -27,6 +27,8 @@ FOOTPRINT_SIGMAS = 3.0
 PIR_REPORT_PD = 0.6
 PIR_BIRTH_RATE = 1e-3
 PIR_MIN_GAIN = 2.0
+DOOR_DEPTH = 1.5
+"""m: people are born within this distance of the room's walls (its doors)"""
 
 
 def is_real_pir(deployment: Deployment) -> bool:
@@ -42,5 +44,9 @@ def pir_settings(deployment: Deployment, fusion: FusionConfig, config: MCMCDACon
     radius_m = radius * deployment.metres_per_unit
     config = replace(config, extra_variance=(radius_m / FOOTPRINT_SIGMAS) ** 2, pd=PIR_REPORT_PD,
                      birth_rate=PIR_BIRTH_RATE)
+    if DOOR_DEPTH is not None:
+        r = deployment.region
+        m = deployment.metres_per_unit
+        config = replace(config, birth_edge=DOOR_DEPTH, birth_area=(r.xmin * m, r.ymin * m, r.xmax * m, r.ymax * m))
     fusion = replace(fusion, min_gain=PIR_MIN_GAIN)
     return fusion, config
