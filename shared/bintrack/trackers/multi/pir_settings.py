@@ -11,7 +11,11 @@ ceiling-PIR recording of Milan et al., ACCV 2014 workshops; reported on r1-mediu
   median fitted radius), rather than 4 m² for R = 8 m;
 * ``pd``: about 0.6 of a scan's people yield a report with sensors of pd ≈ 0.6;
 * ``birth_rate``: 1e-3 per m² and scan, people come and go through the doors of a small room;
-* ``min_gain``: 2 nats, a target seen by one or two weak sensors still makes a report.
+* ``min_gain``: 2 nats, a target seen by one or two weak sensors still makes a report;
+* ``expected_split_gain``: 8 nats, a track's blob is split into two people only on strong
+  evidence (footprints of neighbouring sensors overlap, and one walker lights several);
+* births: λ_b ten times lower farther than 1.5 m from the walls (``MCMCDAConfig.birth_edge``):
+  people enter through the doors.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ FOOTPRINT_SIGMAS = 3.0
 PIR_REPORT_PD = 0.6
 PIR_BIRTH_RATE = 1e-3
 PIR_MIN_GAIN = 2.0
+PIR_SPLIT_GAIN = 8.0
 DOOR_DEPTH = 1.5
 """m: people are born within this distance of the room's walls (its doors)"""
 
@@ -48,5 +53,5 @@ def pir_settings(deployment: Deployment, fusion: FusionConfig, config: MCMCDACon
         r = deployment.region
         m = deployment.metres_per_unit
         config = replace(config, birth_edge=DOOR_DEPTH, birth_area=(r.xmin * m, r.ymin * m, r.xmax * m, r.ymax * m))
-    fusion = replace(fusion, min_gain=PIR_MIN_GAIN)
+    fusion = replace(fusion, min_gain=PIR_MIN_GAIN, expected_split_gain=PIR_SPLIT_GAIN)
     return fusion, config
