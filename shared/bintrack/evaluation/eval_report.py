@@ -5,9 +5,12 @@ Which figures apply depends on the result and the truth:
 
 * tracks.csv, one target and at most one track id: location error and error/R (paper 001
   §5.3), trajectory error (§5.5), velocity error when the rows carry a velocity (§5.4);
-* tracks.csv with several targets or several track ids: GOSPA per scan and its parts, the
-  error in the number of targets, identity switches (paper 004), and the location error to the
-  nearest target;
+* tracks.csv with several targets or several track ids: GOSPA per frame and its parts, the
+  error in the number of targets, identity switches (paper 004), CLEAR MOT (MOTA, MOTP, FP, FN,
+  mismatches; greedy or Hungarian pairing within a hit threshold) and IDF1
+  (:mod:`.clear_mot`), and the location error to the nearest target. Frames are the result's
+  times and, for sampled sensors, every sampling instant within the truth's span, so that a
+  frame without tracks counts; an optional tracking area leaves out what lies outside it;
 * objects.csv: entry and exit point errors of line-sensor objects (paper 003 §7.2).
 """
 
