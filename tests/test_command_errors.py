@@ -80,6 +80,12 @@ CASES = [
     ["export", "{NOTMCAP}", "--what", "tracks", "--out", "x.csv"],
     ["view", "{MISSING}/run.mcap"],
     ["view", "{NOTMCAP}"],
+    # import, calibrate
+    ["import", "{FILE}", "--sensors", "{MISSING}/s.csv", "--period", "0.5", "--range", "0.7", "--out", "{TMP}/imp"],
+    ["import", "{MISSING}/m.txt", "--sensors", "{FILE}", "--period", "0.5", "--range", "0.7", "--out", "{TMP}/imp"],
+    ["calibrate", "{MISSING}", "--out", "{TMP}/cal"],
+    ["calibrate", str(DARPA3), "--out", "{FILE}", "--boot", "0"],
+    ["calibrate", str(DARPA3), "--out", f"{UNWRITABLE}/cal", "--boot", "0"],
     # certs
     ["certs", "--out", "{FILE}"],
     ["certs", "--out", f"{UNWRITABLE}/certs"],

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bintrack.argtypes import int_at_least, positive_float
+from bintrack.argtypes import int_at_least, output_folder, positive_float
 from bintrack.calibration.pir_calibration import Estimate, Fit, calibrate, calibrate_supervised
 from bintrack.calibration.sample_series import sample_series
 from bintrack.errors import CommandError
@@ -42,8 +42,6 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.resolve() == dataset.path.resolve():
         raise CommandError("--out must be another folder than DATASET")
-    if out.exists() and not out.is_dir():
-        raise CommandError(f"--out {out} exists and is not a folder")
     deployment = dataset.deployment
     disks = [s for s in deployment.sensors if isinstance(s, DiskSensor)]
     stated = args.range if args.range is not None else (statistics.median(s.range for s in disks) if disks else None)
@@ -74,8 +72,8 @@ def run(args: argparse.Namespace) -> int:
             fields["still"] = round(f.still.value, 4)
         sensors.append(s.model_copy(update=fields))
     fitted = deployment.model_validate({**deployment.model_dump(by_alias=True), "sensors": [s.model_dump() for s in sensors]})
+    out = output_folder(out)  # the fit first: a refused run leaves no folder behind
     try:
-        out.mkdir(parents=True, exist_ok=True)
         write_deployment(out / "deployment.json", fitted)
         shutil.copyfile(dataset.events_path, out / EVENTS_FILE)
         if dataset.has_truth:

@@ -8,7 +8,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bintrack.argtypes import int_at_least, positive_float
+from bintrack.argtypes import int_at_least, output_folder, positive_float
 from bintrack.errors import CommandError
 from bintrack.formats import write_dataset
 from bintrack.importers.binary_matrix import (METRES_PER, matrix_events, parse_columns, read_sample_matrix,
@@ -74,9 +74,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise CommandError(f"--out {out} exists and is not a folder")
     sensors = read_sensor_table(args.sensors, args.sensor_units, args.columns)
     matrix = read_sample_matrix(args.matrix, args.header_lines)
     events = list(matrix_events(matrix, sensors, args.period, args.matrix))
@@ -86,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         xs, ys = [s.x for s in sensors], [s.y for s in sensors]
         xmin, ymin, xmax, ymax = min(xs) - args.range, min(ys) - args.range, max(xs) + args.range, max(ys) + args.range
     deployment = Deployment(
-        name=args.name or out.resolve().name, units="m",
+        name=args.name or Path(args.out).resolve().name, units="m",
         region=Region(xmin=xmin, ymin=ymin, xmax=xmax, ymax=ymax),
         sensors=[DiskSensor(id=s.id, x=round(s.x, 6), y=round(s.y, 6), range=args.range, period=args.period,
                             pd=args.pd, pfa=args.pfa)
@@ -94,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
     truth = None
     if args.truth:
         truth = read_cvml(args.truth, args.period, args.truth_scale * METRES_PER[args.truth_units], args.first_frame)
+    out = output_folder(Path(args.out))  # inputs first: a refused run leaves no folder behind
     try:
         write_dataset(out, deployment, events, truth)
     except OSError as exc:

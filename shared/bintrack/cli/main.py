@@ -19,8 +19,8 @@ from bintrack.formats import FormatError
 SUBCOMMANDS = {
     "simulate": ("bintrack.cli.simulate_command", "write a simulated dataset for a named paper scenario"),
     "track": ("bintrack.cli.track_command", "run a tracker offline over a dataset folder and write tracks.csv"),
-    "import": ("bintrack.cli.import_command", "a recording of binary sensors (sample matrix, sensor table, CVML truth) as a dataset folder"),
-    "calibrate": ("bintrack.cli.calibrate_command", "fit each sensor's footprint, pd, pfa and hold time to a recording; write the fitted dataset"),
+    "import": ("bintrack.cli.import_command", "a sample matrix, sensor table and CVML truth as a dataset"),
+    "calibrate": ("bintrack.cli.calibrate_command", "fit each sensor's footprint, pd, pfa, hold to a recording"),
     "eval": ("bintrack.cli.eval_command", "score tracks.csv or objects.csv against the dataset's truth.csv"),
     "schema": ("bintrack.cli.schema_command", "print the JSON Schema of every bus message"),
     "up": ("bintrack.cli.up_command", "the whole stack on this machine: router, services, and the replay of DIR"),
@@ -35,11 +35,24 @@ SUBCOMMANDS = {
 }
 
 
+class _CommandListFormatter(argparse.HelpFormatter):
+    """argparse's formatter, but a command name as long as "calibrate" keeps its help beside it
+    (argparse measures the commands without their extra indent, and wraps the longest)."""
+
+    def add_argument(self, action):
+        super().add_argument(action)
+        if isinstance(action, argparse._SubParsersAction):
+            longest = max((len(name) for name in action.choices), default=0)
+            self._action_max_length = max(self._action_max_length,
+                                          longest + self._current_indent + 2 * self._indent_increment)
+
+
 def build_parser(chosen: str | None = None) -> argparse.ArgumentParser:
     """The parser; only subcommand ``chosen`` gets its options (and its module imported)."""
     parser = argparse.ArgumentParser(
         prog="bintrack",
         description="Track moving targets with networks of binary sensors.",
+        formatter_class=_CommandListFormatter,
     )
     parser.add_argument("--version", action="version", version=f"bintrack {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
