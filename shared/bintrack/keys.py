@@ -1,6 +1,8 @@
-"""Key expressions of DESIGN §3: build them for a network and parse them back.
+"""Key expressions of the bus: build them for a network and parse them back, both from one table.
 
-Every key is ``bintrack/<net>/<suffix>``; ``<net>`` is the deployment name.
+Every key is ``bintrack/<net>/<suffix>``; ``<net>`` is the deployment name. ``KINDS`` holds the
+suffix of every kind of key, once: ``Keys`` builds each kind from it and ``parse_key`` parses it
+back, so a kind cannot be built without being parsed.
 """
 
 from __future__ import annotations
@@ -12,23 +14,58 @@ from bintrack.messages import check_sensor_id
 
 ROOT = "bintrack"
 
-# kind -> (suffix before the id, suffix after the id); None where the key has no id part.
-_PER_SENSOR = {
-    "raw": ("raw", None),
-    "transition": ("sensor", "transition"),
-    "state": ("sensor", "state"),
-    "estimate": ("peer", "estimate"),
-}
-_FIXED = {
-    "fusion/reports": "fusion_reports",
-    "tracks": "tracks",
-    "laser/objects": "laser_objects",
-    "motion/velocity": "motion_velocity",
-    "truth": "truth",
-    "deployment": "deployment",
-    "clock": "clock",
-    "control/eos": "eos",
-}
+
+@dataclass(frozen=True)
+class KeyKind:
+    """One kind of key: ``suffix`` is its chunks after ``bintrack/<net>/``, a chunk in braces
+    (``{sensor}``, ``{region}``, ``{service}``, ``{instance}``) being a field of ``ParsedKey``."""
+
+    kind: str
+    suffix: str
+    what: str
+
+    @property
+    def chunks(self) -> tuple[str, ...]:
+        return tuple(self.suffix.split("/"))
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        """The fields of this kind, in key order (the builder's parameters)."""
+        return tuple(c[1:-1] for c in self.chunks if _is_field(c))
+
+
+def _is_field(chunk: str) -> bool:
+    return chunk.startswith("{") and chunk.endswith("}")
+
+
+KINDS: tuple[KeyKind, ...] = (
+    KeyKind("raw", "raw/{sensor}", "a sensor's raw samples (`RawSample`), from replay"),
+    KeyKind("transition", "sensor/{sensor}/transition", "a sensor's detection transitions (`Transition`)"),
+    KeyKind("state", "sensor/{sensor}/state", "queryable: a sensor's state and its recent transitions (`SensorState`)"),
+    KeyKind("estimate", "peer/{sensor}/estimate", "a peer agent's local estimate (`LocalEstimate`)"),
+    KeyKind("fusion_reports", "fusion/reports", "the base station's position reports of a scan (`PositionReports`)"),
+    KeyKind("tracks", "tracks", "the track set (`TrackSet`); also a queryable (`?after=T`)"),
+    KeyKind("region_reports", "region/{region}/fusion/reports", "a region's base station: its `PositionReports`"),
+    KeyKind("region_tracks", "region/{region}/tracks",
+            "a region's base station: its `TrackSet` (local ids); the merge makes `tracks` of them"),
+    KeyKind("region_progress", "region/{region}/progress",
+            "a region's base station: a `Clock` after each tick, the event time up to which its tracks are final"),
+    KeyKind("region_alive", "region/{region}/alive", "liveliness token of a region's base station (one per region)"),
+    KeyKind("laser_objects", "laser/objects", "the laser tracker's objects (`LineObjectEstimate`)"),
+    KeyKind("motion_velocity", "motion/velocity", "the motion trackers' velocity estimates (`VelocityEstimate`)"),
+    KeyKind("truth", "truth", "replay of a dataset with truth.csv: where the targets really are (`TruthSample`)"),
+    KeyKind("deployment", "deployment", "queryable: the deployment (`Deployment`), served by replay"),
+    KeyKind("clock", "clock", "event time (`Clock`), from replay"),
+    KeyKind("eos", "control/eos", "end of stream (`EndOfStream`), from replay"),
+    KeyKind("recent", "control/recent",
+            "queryable: replay's raw samples since a clock tick (`?after=T`), for a restarted sensor agent"),
+    KeyKind("alive", "alive/{service}/{instance}", "liveliness token of a service instance"),
+    KeyKind("progress", "control/progress/{service}/{instance}",
+            "flow control: the event time (`Clock`) a service instance has processed"),
+    KeyKind("done", "control/done/{service}/{instance}",
+            "flow control: a service instance has processed the end of stream (`EndOfStream`)"),
+)
+KIND = {k.kind: k for k in KINDS}
 
 
 def _chunk(value: str, what: str) -> str:
@@ -37,9 +74,23 @@ def _chunk(value: str, what: str) -> str:
     return value
 
 
+def _any_or(check):
+    return lambda value: value if value == "*" else check(value)
+
+
+# field -> its check when building a key (``*`` is a wildcard for subscriptions)
+_FIELD_CHECKS = {
+    "sensor": _any_or(check_sensor_id),
+    "region": _any_or(lambda v: _chunk(v, "region name")),
+    "service": _any_or(lambda v: _chunk(v, "service name")),
+    "instance": _any_or(lambda v: _chunk(v, "instance id")),
+}
+
+
 @dataclass(frozen=True)
 class Keys:
-    """The key expressions of one network (``net``)."""
+    """The key expressions of one network (``net``); one method per kind of ``KINDS``, named as
+    the kind, its parameters the kind's fields (``*``, the default, for any)."""
 
     net: str = "default"
 
@@ -54,98 +105,93 @@ class Keys:
         """Everything of this network: what the recorder subscribes to."""
         return f"{self.prefix}/**"
 
+    def build(self, kind: str, **fields: str) -> str:
+        """The key of ``kind`` (a ``KINDS`` entry) with these fields (each ``*`` when omitted)."""
+        spec = KIND[kind]
+        unknown = set(fields) - set(spec.fields)
+        if unknown:
+            raise TypeError(f"key kind {kind!r} has no field {sorted(unknown)}")
+        chunks = [_FIELD_CHECKS[c[1:-1]](fields.get(c[1:-1], "*")) if _is_field(c) else c for c in spec.chunks]
+        return "/".join((self.prefix, *chunks))
+
     def raw(self, sensor: str = "*") -> str:
-        return f"{self.prefix}/raw/{self._sensor(sensor)}"
+        return self.build("raw", sensor=sensor)
 
     def transition(self, sensor: str = "*") -> str:
-        return f"{self.prefix}/sensor/{self._sensor(sensor)}/transition"
+        return self.build("transition", sensor=sensor)
 
     def state(self, sensor: str = "*") -> str:
-        return f"{self.prefix}/sensor/{self._sensor(sensor)}/state"
+        return self.build("state", sensor=sensor)
 
     def estimate(self, sensor: str = "*") -> str:
-        return f"{self.prefix}/peer/{self._sensor(sensor)}/estimate"
+        return self.build("estimate", sensor=sensor)
 
     def fusion_reports(self) -> str:
-        return f"{self.prefix}/fusion/reports"
+        return self.build("fusion_reports")
 
     def tracks(self) -> str:
-        return f"{self.prefix}/tracks"
+        return self.build("tracks")
 
     def region_reports(self, region: str = "*") -> str:
         """A region's base station: its ``PositionReports`` (DESIGN §9)."""
-        return f"{self.prefix}/region/{self._region(region)}/fusion/reports"
+        return self.build("region_reports", region=region)
 
     def region_tracks(self, region: str = "*") -> str:
         """A region's base station: its ``TrackSet`` (local ids); the merge makes ``tracks`` of them."""
-        return f"{self.prefix}/region/{self._region(region)}/tracks"
+        return self.build("region_tracks", region=region)
 
     def region_progress(self, region: str = "*") -> str:
         """A region's base station: a ``Clock`` after each tick, the event time up to which its
         tracks are final (every scan at or before it was published)."""
-        return f"{self.prefix}/region/{self._region(region)}/progress"
+        return self.build("region_progress", region=region)
 
     def region_alive(self, region: str = "*") -> str:
         """Liveliness token of a region's base station (one per region)."""
-        return f"{self.prefix}/region/{self._region(region)}/alive"
+        return self.build("region_alive", region=region)
 
     def laser_objects(self) -> str:
-        return f"{self.prefix}/laser/objects"
+        return self.build("laser_objects")
 
     def motion_velocity(self) -> str:
-        return f"{self.prefix}/motion/velocity"
+        return self.build("motion_velocity")
 
     def truth(self) -> str:
         """Replay of a dataset with truth.csv: where the targets really are (``TruthSample``)."""
-        return f"{self.prefix}/truth"
+        return self.build("truth")
 
     def deployment(self) -> str:
-        return f"{self.prefix}/deployment"
+        return self.build("deployment")
 
     def clock(self) -> str:
-        return f"{self.prefix}/clock"
+        return self.build("clock")
 
     def eos(self) -> str:
-        return f"{self.prefix}/control/eos"
+        return self.build("eos")
 
     def recent(self) -> str:
         """Replay's queryable of the raw samples it published since a clock tick (``?after=T``),
         for a sensor agent that restarts from its checkpoint."""
-        return f"{self.prefix}/control/recent"
+        return self.build("recent")
 
     def alive(self, service: str = "*", instance: str = "*") -> str:
         """Liveliness token key of a service instance (``*`` for any)."""
-        return f"{self.prefix}/alive/{self._service(service, instance)}"
+        return self.build("alive", service=service, instance=instance)
 
     def progress(self, service: str = "*", instance: str = "*") -> str:
         """Flow control: the event time (``Clock``) a service instance has processed."""
-        return f"{self.prefix}/control/progress/{self._service(service, instance)}"
+        return self.build("progress", service=service, instance=instance)
 
     def done(self, service: str = "*", instance: str = "*") -> str:
         """Flow control: a service instance has processed the end of stream (``EndOfStream``)."""
-        return f"{self.prefix}/control/done/{self._service(service, instance)}"
-
-    @staticmethod
-    def _service(service: str, instance: str) -> str:
-        service = service if service == "*" else _chunk(service, "service name")
-        instance = instance if instance == "*" else _chunk(instance, "instance id")
-        return f"{service}/{instance}"
-
-    @staticmethod
-    def _region(region: str) -> str:
-        return region if region == "*" else _chunk(region, "region name")
-
-    @staticmethod
-    def _sensor(sensor: str) -> str:
-        return sensor if sensor == "*" else check_sensor_id(sensor)
+        return self.build("done", service=service, instance=instance)
 
 
 @dataclass(frozen=True)
 class ParsedKey:
-    """What a concrete key names: ``kind`` is one of raw, transition, state, estimate,
-    fusion_reports, tracks, laser_objects, motion_velocity, truth, deployment, clock, eos, alive,
-    progress, done (the last two are flow control, beyond DESIGN §3), and per region (``region``)
-    region_reports, region_tracks, region_progress, region_alive."""
+    """What a concrete key names: ``kind`` is the ``kind`` of one of ``KINDS`` (raw, transition,
+    state, estimate, fusion_reports, tracks, region_reports, region_tracks, region_progress,
+    region_alive, laser_objects, motion_velocity, truth, deployment, clock, eos, recent, alive,
+    progress, done), and the fields its suffix has."""
 
     net: str
     kind: str
@@ -155,13 +201,14 @@ class ParsedKey:
     region: str | None = None
 
 
-_PER_REGION = {"fusion/reports": "region_reports", "tracks": "region_tracks", "progress": "region_progress",
-               "alive": "region_alive"}
-
-
 def parse_key(key: str) -> ParsedKey:
     """Parse a concrete bintrack key; raises ValueError for anything else."""
     return _parse_key(str(key))
+
+
+# (number of chunks, literal chunks by position, field names by position, kind) of each kind
+_PATTERNS = [(len(k.chunks), {i: c for i, c in enumerate(k.chunks) if not _is_field(c)},
+              {i: c[1:-1] for i, c in enumerate(k.chunks) if _is_field(c)}, k.kind) for k in KINDS]
 
 
 @lru_cache(maxsize=65536)  # a network has few keys; parsed once each (a bound against key floods)
@@ -170,19 +217,8 @@ def _parse_key(key: str) -> ParsedKey:
     if len(parts) < 3 or parts[0] != ROOT or not parts[1]:
         raise ValueError(f"not a bintrack key: {key!r}")
     net, rest = parts[1], parts[2:]
-    suffix = "/".join(rest)
-    if suffix in _FIXED:
-        return ParsedKey(net, _FIXED[suffix])
-    if len(rest) == 2 and rest[0] == "raw" and rest[1]:
-        return ParsedKey(net, "raw", sensor=rest[1])
-    if len(rest) == 3 and rest[1]:
-        for kind, (head, tail) in _PER_SENSOR.items():
-            if rest[0] == head and rest[2] == tail:
-                return ParsedKey(net, kind, sensor=rest[1])
-    if len(rest) >= 3 and rest[0] == "region" and rest[1] and "/".join(rest[2:]) in _PER_REGION:
-        return ParsedKey(net, _PER_REGION["/".join(rest[2:])], region=rest[1])
-    if len(rest) == 3 and rest[0] == "alive" and rest[1] and rest[2]:
-        return ParsedKey(net, "alive", service=rest[1], instance=rest[2])
-    if len(rest) == 4 and rest[0] == "control" and rest[1] in ("progress", "done") and rest[2] and rest[3]:
-        return ParsedKey(net, rest[1], service=rest[2], instance=rest[3])
+    for size, literals, fields, kind in _PATTERNS:
+        if (len(rest) == size and all(rest[i] == c for i, c in literals.items())
+                and all(rest[i] for i in fields)):
+            return ParsedKey(net, kind, **{name: rest[i] for i, name in fields.items()})
     raise ValueError(f"unknown bintrack key: {key!r}")
