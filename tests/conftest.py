@@ -1,4 +1,5 @@
-"""Shared fixtures: small datasets written the way another program would (json + csv only)."""
+"""Shared fixtures: small datasets written the way another program would (json + csv only), a
+Zenoh router, services in subprocesses. The helpers they use are in support.py."""
 
 from __future__ import annotations
 
@@ -12,8 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-HUNG = 300.0  # s: every wait is on an event; its timeout only fails a hung run (a loaded CPU is not one)
+from support import ServiceProcess, free_port
 
 
 def pytest_configure(config):
@@ -66,14 +66,6 @@ def foreign_dataset(tmp_path: Path) -> Path:
 # --------------------------------------------------------------------------- live system
 
 
-def free_port() -> int:
-    import socket
-
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
 @pytest.fixture
 def zenoh_router():
     """A real Zenoh router in this process on a free loopback port; yields its endpoint."""
@@ -87,39 +79,6 @@ def zenoh_router():
         yield endpoint
     finally:
         router.close()
-
-
-class ServiceProcess:
-    """A service started as ``python -m bintrack.services.<name>``; output goes to a log file."""
-
-    def __init__(self, name: str, args: list[str], endpoint: str, log_dir: Path):
-        import subprocess
-        import sys
-
-        self.name = name
-        self.log_path = log_dir / f"{name}-{free_port()}.log"
-        self._log = open(self.log_path, "w")
-        self.proc = subprocess.Popen([sys.executable, "-m", f"bintrack.services.{name}", *args, "-e", endpoint],
-                                     stdout=self._log, stderr=subprocess.STDOUT, cwd=REPO)
-
-    @property
-    def log(self) -> str:
-        if not self._log.closed:
-            self._log.flush()
-        return self.log_path.read_text()
-
-    def wait(self, timeout: float = HUNG) -> int:
-        code = self.proc.wait(timeout=timeout)
-        self._log.close()
-        return code
-
-    def stop(self, timeout: float = HUNG) -> int:
-        """SIGTERM, then the exit status (a hang fails the test)."""
-        import signal
-
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-        return self.wait(timeout)
 
 
 @pytest.fixture

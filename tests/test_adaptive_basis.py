@@ -29,9 +29,9 @@ from bintrack.sim.scenarios import build_scenario
 from bintrack.trackers.laser.tracker import AdaptiveBasisTracker
 from bintrack.transition_detector import TransitionDetector
 
-from conftest import REPO
+from support import DATASETS
 
-TESTBED = REPO / "datasets" / "laser-testbed"
+TESTBED = DATASETS / "laser-testbed"
 
 
 def _basis(times: np.ndarray, **kw) -> AdaptiveBasis:

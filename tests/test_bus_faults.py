@@ -19,7 +19,6 @@ import math
 import re
 import signal
 import threading
-import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +27,7 @@ import msgpack
 import pytest
 import zenoh
 
-from bintrack.live.session_options import client_config, router_config
+from bintrack.live.session_options import router_config
 from bintrack.live.control_guard import control_attachment
 from bintrack.formats import open_dataset
 from bintrack.keys import Keys, parse_key
@@ -49,109 +48,22 @@ from bintrack.messages import (
     encode_raw_sample,
     is_resent,
 )
-from bintrack.live.recording import KIND_TYPES, RecordingWriter, open_recording
+from bintrack.live.recording import RecordingWriter, open_recording
 
-from conftest import HUNG, free_port, write_foreign_dataset
+from conftest import write_foreign_dataset
+from support import HUNG, FakeBus, free_port, kind_of, wait_until
 
 NET = "faults"
+KEYS = Keys(NET)
 # Five disk sensors on a line, neighbours of each other: n0 … n4 at x = 0 … 4.
 DEPLOYMENT = Deployment(name=NET, units="m", region=Region(xmin=-5, ymin=-5, xmax=10, ymax=5),
                         sensors=[DiskSensor(id=f"n{i}", x=float(i), y=0.0, range=2.0) for i in range(5)])
 TRACKER = "equal-weight"
 
 
-def client_session(endpoint: str) -> zenoh.Session:
-    return zenoh.open(client_config([endpoint]))
-
-
-def wait_until(condition, what: str, timeout: float = HUNG, logs=()) -> None:
-    """Wait (generously) for ``condition()``; fail with the services' logs if it never holds."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}\n" + "\n".join(p.log[-3000:] for p in logs))
-        time.sleep(0.02)
-
-
-class Bus:
-    """The test's own Zenoh session on a network: serves the deployment (as replay would),
-    publishes by hand, and keeps every message of the network in arrival order (one
-    subscriber, so the order each publisher sent them in is kept)."""
-
-    def __init__(self, endpoint: str, deployment: Deployment = DEPLOYMENT, serve_deployment: bool = True):
-        self.keys = Keys(deployment.name)
-        self.session = client_session(endpoint)
-        self.lock = threading.Lock()
-        self.seen: list[tuple[str, bytes]] = []
-        self.entities = [self.session.declare_subscriber(self.keys.all(), self._on_sample),
-                         # it plays the replay's part: clock and end of stream from a replay token's holder
-                         self.session.liveliness().declare_token(self.keys.alive("replay", "test"))]
-        self.control = control_attachment("replay", "test")
-        self.played: list[str] = []
-        if serve_deployment:
-            payload = encode(deployment)
-            self.entities.append(self.session.declare_queryable(
-                self.keys.deployment(), lambda query: query.reply(self.keys.deployment(), payload)))
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        with self.lock:
-            self.seen.append((str(sample.key_expr), sample.payload.to_bytes()))
-
-    def put(self, suffix: str, payload) -> None:
-        self.session.put(f"{self.keys.prefix}/{suffix}", payload if isinstance(payload, bytes) else encode(payload),
-                         attachment=self.control)
-
-    def messages(self, kind: str, start: int = 0) -> list[tuple[str, object]]:
-        """(key, decoded message) of every message of key kind ``kind`` seen, from index ``start``."""
-        with self.lock:
-            seen = self.seen[start:]
-        return [(key, decode(KIND_TYPES[kind], payload)) for key, payload in seen if kind_of(key) == kind]
-
-    def mark(self) -> int:
-        with self.lock:
-            return len(self.seen)
-
-    def alive(self, service: str) -> list[str]:
-        replies = self.session.liveliness().get(self.keys.alive(service), timeout=2.0)
-        return [str(r.ok.key_expr) for r in replies if r.ok is not None]
-
-    def play(self, service: str) -> None:
-        """Play an upstream instance of ``service`` too (a liveliness token, and a progress
-        report at each tick): the services downstream wait for an upstream of each kind."""
-        self.entities.append(self.session.liveliness().declare_token(self.keys.alive(service, "test")))
-        self.played.append(service)
-
-    def wait_for(self, service: str, proc=None, timeout: float = HUNG) -> None:
-        wait_until(lambda: self.alive(service), f"{service} to come up", timeout, [proc] if proc else [])
-
-    def tick(self, t: float, service: str, proc=None, sent: int | None = None) -> None:
-        """Publish a clock tick and wait until ``service`` reports progress to it (so it has
-        handled everything published before the tick). A played upstream reports having
-        handled everything up to ``t`` first (a played sensor agent: having sent ``sent``)."""
-        for upstream in self.played:
-            self.session.put(self.keys.progress(upstream, "test"), encode(Clock(t=t, sent=sent)),
-                             attachment=control_attachment(upstream, "test"))
-        self.put("clock", Clock(t=t))
-        wait_until(lambda: any(parse_key(key).service == service and message.t >= t
-                               for key, message in self.messages("progress")),
-                   f"progress {t} from {service}", logs=[proc] if proc else [])
-
-    def close(self) -> None:
-        for entity in self.entities:
-            entity.undeclare()
-        self.session.close()
-
-
-def kind_of(key: str) -> str | None:
-    try:
-        return parse_key(key).kind
-    except ValueError:
-        return None
-
-
 @pytest.fixture
 def bus(zenoh_router):
-    handle = Bus(zenoh_router)
+    handle = FakeBus(zenoh_router, DEPLOYMENT)
     yield handle
     handle.close()
 
@@ -163,9 +75,9 @@ NAN_T = float("nan")
 
 @dataclass(frozen=True)
 class Bad:
-    """A bad payload sent on ``suffix``: the count key it is summed under and part of its reason."""
+    """A bad payload sent on ``key``: the count key it is summed under and part of its reason."""
 
-    suffix: str
+    key: str
     payload: bytes
     kind: str
     reason: str
@@ -175,9 +87,9 @@ def packed(**fields) -> bytes:
     return msgpack.packb({"version": 1, **fields})
 
 
-def send_bad(bus: Bus, cases: list[Bad]) -> None:
+def send_bad(bus: FakeBus, cases: list[Bad]) -> None:
     for case in cases:
-        bus.put(case.suffix, case.payload)
+        bus.put(case.key, case.payload)
 
 
 def check_bad_input_accounting(proc, service: str, cases: list[Bad]) -> None:
@@ -190,10 +102,10 @@ def check_bad_input_accounting(proc, service: str, cases: list[Bad]) -> None:
     warnings = [line for line in log.splitlines() if "dropped a bad payload from" in line]
     first: dict[str, Bad] = {}
     for case in cases:
-        first.setdefault(f"{NET}/{case.suffix}", case)
+        first.setdefault(case.key, case)
     assert len(warnings) == len(first), log
     for sender, case in first.items():
-        lines = [line for line in warnings if f"dropped a bad payload from bintrack/{sender}: " in line]
+        lines = [line for line in warnings if f"dropped a bad payload from {sender}: " in line]
         assert len(lines) == 1, (sender, log)
         assert case.reason in lines[0], (case, lines[0])
         assert lines[0].startswith(tuple("0123456789")) and f"{service}: " in lines[0]  # a log line, not a trace
@@ -215,23 +127,23 @@ def test_sensor_agent_survives_bad_raw_samples(zenoh_router, services, bus):
     agent = services("sensor_agent", "--net", NET, endpoint=zenoh_router)
     bus.wait_for("sensor_agent", agent)
     garbage = twice(
-        Bad("raw/n0", b"\xc1\xc1 not msgpack at all", "not msgpack", "not msgpack"),
-        Bad("raw/n1", packed(temperature=21.5), "invalid RawSample", "invalid RawSample: t: Field required"),
-        Bad("raw/zz", encode(RawSample(t=1.0, sensor="zz", value=1)), "unknown sensor id 'zz'", "unknown sensor id 'zz'"),
-        Bad("raw/n2", packed(t=NAN_T, sensor="n2", value=1), "invalid RawSample", "invalid RawSample: t: Input should be a finite number"),
-        Bad("raw/n4", encode(RawSample(t=1.0, sensor="n4", value=7)), "disk sensor reports 0 or 1, got 7", "disk sensor reports 0 or 1, got 7"),
+        Bad(KEYS.raw("n0"), b"\xc1\xc1 not msgpack at all", "not msgpack", "not msgpack"),
+        Bad(KEYS.raw("n1"), packed(temperature=21.5), "invalid RawSample", "invalid RawSample: t: Field required"),
+        Bad(KEYS.raw("zz"), encode(RawSample(t=1.0, sensor="zz", value=1)), "unknown sensor id 'zz'", "unknown sensor id 'zz'"),
+        Bad(KEYS.raw("n2"), packed(t=NAN_T, sensor="n2", value=1), "invalid RawSample", "invalid RawSample: t: Input should be a finite number"),
+        Bad(KEYS.raw("n4"), encode(RawSample(t=1.0, sensor="n4", value=7)), "disk sensor reports 0 or 1, got 7", "disk sensor reports 0 or 1, got 7"),
     )
     send_bad(bus, garbage)
     # Order is checked per sensor: n3 at t=1 (a transition), the same sample again (a
     # duplicate repeats the status: no transition), then two samples older than t=1.
-    bus.put("raw/n3", RawSample(t=1.0, sensor="n3", value=1))
-    bus.put("raw/n3", RawSample(t=1.0, sensor="n3", value=1))
-    out_of_order = twice(Bad("raw/n3", encode(RawSample(t=0.5, sensor="n3", value=0)), "out of order",
+    bus.put(KEYS.raw("n3"), RawSample(t=1.0, sensor="n3", value=1))
+    bus.put(KEYS.raw("n3"), RawSample(t=1.0, sensor="n3", value=1))
+    out_of_order = twice(Bad(KEYS.raw("n3"), encode(RawSample(t=0.5, sensor="n3", value=0)), "out of order",
                              "out of order: t=0.5 after t=1.0"))
     send_bad(bus, out_of_order)
     # (a) good samples afterwards become transitions, and n3 continues from its status
-    bus.put("raw/n3", RawSample(t=2.0, sensor="n3", value=0))
-    bus.put("raw/n4", RawSample(t=2.0, sensor="n4", value=1))
+    bus.put(KEYS.raw("n3"), RawSample(t=2.0, sensor="n3", value=0))
+    bus.put(KEYS.raw("n4"), RawSample(t=2.0, sensor="n4", value=1))
     bus.tick(3.0, "sensor_agent", agent)
     wait_until(lambda: len(bus.messages("transition")) >= 3, "three transitions", logs=[agent])
     transitions = sorted(((m.sensor, m.seq, m.t, m.previous, m.value) for _, m in bus.messages("transition")))
@@ -248,32 +160,32 @@ def test_peer_agent_survives_bad_transitions(zenoh_router, services, bus):
     agent = services("peer_agent", "--tracker", TRACKER, "--lateness", "1", "--net", NET, endpoint=zenoh_router)
     bus.wait_for("peer_agent", agent)
     garbage = twice(
-        Bad("sensor/n0/transition", b"\x00garbage\xff", "not msgpack", "not msgpack"),
-        Bad("sensor/n1/transition", encode(RawSample(t=1.0, sensor="n1", value=1)), "invalid Transition",
+        Bad(KEYS.transition("n0"), b"\x00garbage\xff", "not msgpack", "not msgpack"),
+        Bad(KEYS.transition("n1"), encode(RawSample(t=1.0, sensor="n1", value=1)), "invalid Transition",
             "invalid Transition: previous: Field required"),
-        Bad("sensor/zz/transition", encode(transition("zz", 1, 1.0, 1)), "transition of unknown or mismatched sensor 'zz'",
+        Bad(KEYS.transition("zz"), encode(transition("zz", 1, 1.0, 1)), "transition of unknown or mismatched sensor 'zz'",
             "transition of unknown or mismatched sensor 'zz'"),
-        Bad("sensor/n2/transition", packed(t=NAN_T, sensor="n2", value=1, previous=0, seq=1), "invalid Transition",
+        Bad(KEYS.transition("n2"), packed(t=NAN_T, sensor="n2", value=1, previous=0, seq=1), "invalid Transition",
             "invalid Transition: t: Input should be a finite number"),
     )
     send_bad(bus, garbage)
     # n3: seq 1 and 2, with seq 1 again in between (a duplicate) and after 2 (out of order)
-    bus.put("sensor/n3/transition", transition("n3", 1, 1.0, 1))
-    duplicates = [Bad("sensor/n3/transition", encode(transition("n3", 1, 1.0, 1)), "duplicate",
+    bus.put(KEYS.transition("n3"), transition("n3", 1, 1.0, 1))
+    duplicates = [Bad(KEYS.transition("n3"), encode(transition("n3", 1, 1.0, 1)), "duplicate",
                       "duplicate: seq 1 seen already")]
     send_bad(bus, duplicates)
-    bus.put("sensor/n3/transition", transition("n3", 2, 1.5, 0))
-    out_of_order = [Bad("sensor/n3/transition", encode(transition("n3", 1, 1.0, 1)), "duplicate",
+    bus.put(KEYS.transition("n3"), transition("n3", 2, 1.5, 0))
+    out_of_order = [Bad(KEYS.transition("n3"), encode(transition("n3", 1, 1.0, 1)), "duplicate",
                         "duplicate: seq 1 seen already")]
     send_bad(bus, out_of_order)
     bus.tick(3.0, "peer_agent", agent)  # watermark 2.0: n3's two transitions are released
     # out of order in event time: behind the watermark (lateness 1 s)
-    late = [Bad("sensor/n4/transition", encode(transition("n4", 1, 1.2, 1)), "late",
+    late = [Bad(KEYS.transition("n4"), encode(transition("n4", 1, 1.2, 1)), "late",
                 "late: t=1.2 is behind the watermark 2 s (lateness 1.0 s)"),
-            Bad("sensor/n4/transition", encode(transition("n4", 2, 1.4, 0)), "late", "late")]
+            Bad(KEYS.transition("n4"), encode(transition("n4", 2, 1.4, 0)), "late", "late")]
     send_bad(bus, late)
     # (a) a good transition afterwards contributes to an estimate after a clock tick
-    bus.put("sensor/n1/transition", transition("n1", 1, 6.0, 1))
+    bus.put(KEYS.transition("n1"), transition("n1", 1, 6.0, 1))
     bus.tick(8.0, "peer_agent", agent)
     wait_until(lambda: len(bus.messages("estimate")) >= 2, "two estimates", logs=[agent])
     estimates = [(key, m.t, m.node, m.x, m.y) for key, m in bus.messages("estimate")]
@@ -293,34 +205,34 @@ def test_basestation_survives_bad_estimates(zenoh_router, services, bus):
     station = services("basestation", "--tracker", TRACKER, "--lateness", "2", "--net", NET, endpoint=zenoh_router)
     bus.wait_for("basestation", station)
     garbage = twice(
-        Bad("peer/n0/estimate", b"\xc1", "not msgpack", "not msgpack"),
-        Bad("peer/n1/estimate", encode(transition("n1", 1, 1.0, 1)), "invalid LocalEstimate", "invalid LocalEstimate: "),
-        Bad("peer/zz/estimate", encode(estimate("zz", 1.0, 0.5)), "estimate of unknown or mismatched node 'zz'",
+        Bad(KEYS.estimate("n0"), b"\xc1", "not msgpack", "not msgpack"),
+        Bad(KEYS.estimate("n1"), encode(transition("n1", 1, 1.0, 1)), "invalid LocalEstimate", "invalid LocalEstimate: "),
+        Bad(KEYS.estimate("zz"), encode(estimate("zz", 1.0, 0.5)), "estimate of unknown or mismatched node 'zz'",
             "estimate of unknown or mismatched node 'zz'"),
-        Bad("peer/n2/estimate", packed(t=NAN_T, node="n2", tracker=TRACKER, x=1.0, y=0.0), "invalid LocalEstimate",
+        Bad(KEYS.estimate("n2"), packed(t=NAN_T, node="n2", tracker=TRACKER, x=1.0, y=0.0), "invalid LocalEstimate",
             "invalid LocalEstimate: t: Input should be a finite number"),
-        Bad("peer/n4/estimate", encode(estimate("n4", 1.0, 4.0, tracker="arc")),
+        Bad(KEYS.estimate("n4"), encode(estimate("n4", 1.0, 4.0, tracker="arc")),
             "estimate of tracker 'arc', this base station runs 'equal-weight'", "estimate of tracker 'arc'"),
     )
     send_bad(bus, garbage)
     # Out of order within the lateness bound is put in order; the very same estimate again (as
     # a peer agent restarted from its checkpoint sends) is dropped as a duplicate.
-    bus.put("peer/n3/estimate", estimate("n3", 1.5, 3.0))
-    bus.put("peer/n2/estimate", estimate("n2", 1.0, 2.0))
-    duplicate = [Bad("peer/n2/estimate", encode(estimate("n2", 1.0, 2.0)), "duplicate",
+    bus.put(KEYS.estimate("n3"), estimate("n3", 1.5, 3.0))
+    bus.put(KEYS.estimate("n2"), estimate("n2", 1.0, 2.0))
+    duplicate = [Bad(KEYS.estimate("n2"), encode(estimate("n2", 1.0, 2.0)), "duplicate",
                      "duplicate: estimate at t=1.0 seen already")]
     send_bad(bus, duplicate)
     bus.tick(4.0, "basestation", station)  # watermark 2.0 (lateness 2 s)
-    late = twice(Bad("peer/n1/estimate", encode(estimate("n1", 0.5, 1.0)), "late",
+    late = twice(Bad(KEYS.estimate("n1"), encode(estimate("n1", 0.5, 1.0)), "late",
                      "late: t=0.5 is behind the watermark 2 s (lateness 2.0 s)"))
     send_bad(bus, late)
-    bus.put("peer/n1/estimate", estimate("n1", 5.0, 1.5))  # (a) a good one afterwards
+    bus.put(KEYS.estimate("n1"), estimate("n1", 5.0, 1.5))  # (a) a good one afterwards
     bus.tick(8.0, "basestation", station)
     wait_until(lambda: len(bus.messages("tracks")) >= 3, "three track sets", logs=[station])
     tracks = [(m.t, m.tracker, [(k.track, k.x, k.y) for k in m.tracks]) for _, m in bus.messages("tracks")]
     assert tracks == [(1.0, TRACKER, [(0, 2.0, 0.0)]), (1.5, TRACKER, [(0, 3.0, 0.0)]),
                       (5.0, TRACKER, [(0, 1.5, 0.0)])]
-    latest = [decode(TrackSet, r.ok.payload.to_bytes()) for r in bus.session.get(bus.keys.tracks(), timeout=5.0) if r.ok]
+    latest = [decode(TrackSet, r.ok.payload.to_bytes()) for r in bus.session.get(bus.keys.tracks(), timeout=HUNG) if r.ok]
     assert [m.t for m in latest] == [5.0]  # the tracks queryable answers too
     check_bad_input_accounting(station, "basestation", garbage + duplicate + late)
 
@@ -330,22 +242,22 @@ def test_recorder_survives_bad_payloads(tmp_path, zenoh_router, services, bus):
     recorder = services("recorder", "--out", str(out), "--net", NET, endpoint=zenoh_router)
     bus.wait_for("recorder", recorder)
     garbage = twice(
-        Bad("raw/n0", b"\xc1 garbage", "not msgpack", "not msgpack"),
-        Bad("clock", encode(RawSample(t=1.0, sensor="n1", value=1)), "invalid Clock", "invalid Clock: "),
-        Bad("no/such/key", encode(Clock(t=1.0)), "unknown key", "unknown key: not a key of a bintrack message"),
-        Bad("raw/n2", packed(t=NAN_T, sensor="n2", value=1), "invalid RawSample",
+        Bad(KEYS.raw("n0"), b"\xc1 garbage", "not msgpack", "not msgpack"),
+        Bad(KEYS.clock(), encode(RawSample(t=1.0, sensor="n1", value=1)), "invalid Clock", "invalid Clock: "),
+        Bad(f"{KEYS.prefix}/no/such/key", encode(Clock(t=1.0)), "unknown key", "unknown key: not a key of a bintrack message"),
+        Bad(KEYS.raw("n2"), packed(t=NAN_T, sensor="n2", value=1), "invalid RawSample",
             "invalid RawSample: t: Input should be a finite number"),
-        Bad("peer/n1/estimate", packed(t=-1.0, node="n1", tracker=TRACKER, x=1.0, y=0.0), "unrecordable",
+        Bad(KEYS.estimate("n1"), packed(t=-1.0, node="n1", tracker=TRACKER, x=1.0, y=0.0), "unrecordable",
             "unrecordable: event time -1.0 s cannot be an MCAP log time"),
     )
     send_bad(bus, garbage)
     # The recorder keeps what was on the bus: a sample of a sensor it does not know, a
     # duplicate and an out-of-order one are valid messages and are recorded as they came.
-    bus.put("raw/n3", RawSample(t=1.0, sensor="n3", value=1))
-    bus.put("raw/n3", RawSample(t=1.0, sensor="n3", value=1))
-    bus.put("raw/n3", RawSample(t=0.5, sensor="n3", value=0))
-    bus.put("raw/zz", RawSample(t=1.5, sensor="zz", value=1))
-    bus.put("raw/n4", RawSample(t=2.0, sensor="n4", value=1))  # (a) a good one after the bad ones
+    bus.put(KEYS.raw("n3"), RawSample(t=1.0, sensor="n3", value=1))
+    bus.put(KEYS.raw("n3"), RawSample(t=1.0, sensor="n3", value=1))
+    bus.put(KEYS.raw("n3"), RawSample(t=0.5, sensor="n3", value=0))
+    bus.put(KEYS.raw("zz"), RawSample(t=1.5, sensor="zz", value=1))
+    bus.put(KEYS.raw("n4"), RawSample(t=2.0, sensor="n4", value=1))  # (a) a good one after the bad ones
     bus.tick(3.0, "recorder", recorder)
     check_bad_input_accounting(recorder, "recorder", garbage)
     recording = open_recording(out)
@@ -375,7 +287,7 @@ def test_a_transition_lost_while_its_agent_restarts_is_fetched_at_its_next_progr
     on, lost, n2_on, again = (sent("n1", 1, 1.0, 1, 1), sent("n1", 2, 2.0, 0, 2), sent("n2", 1, 2.5, 1, 3),
                               sent("n1", 3, 3.0, 1, 4))
     for transition in (on, n2_on, again):
-        bus.put(f"sensor/{transition.sensor}/transition", transition)
+        bus.put(KEYS.transition(transition.sensor), transition)
     wait_until(lambda: "seq gap before 3 of n1 could not be repaired" in agent.log, "the gap logged", logs=[agent])
     reply = encode(SensorState(t=3.0, sensor="n1", value=1, seq=3, missed=[lost, again]))
     state = bus.session.declare_queryable(bus.keys.state("n1"), lambda q: q.reply(bus.keys.state("n1"), reply))
@@ -404,7 +316,7 @@ def test_a_restarted_sensor_agent_still_serves_what_it_sent_before_its_checkpoin
         agent = services("sensor_agent", *args, endpoint=zenoh_router)
         bus.wait_for("sensor_agent", agent)
         for t, value in ((1.0, 1), (2.0, 0)):
-            bus.put("raw/n0", RawSample(t=t, sensor="n0", value=value))
+            bus.put(KEYS.raw("n0"), RawSample(t=t, sensor="n0", value=value))
         bus.tick(2.5, "sensor_agent", agent)
         wait_until(lambda: len(bus.messages("transition")) >= 2, "two transitions", logs=[agent])
         before = [m for _, m in bus.messages("transition")]
@@ -415,7 +327,7 @@ def test_a_restarted_sensor_agent_still_serves_what_it_sent_before_its_checkpoin
         restarted = services("sensor_agent", *args, endpoint=zenoh_router)
         bus.wait_for("sensor_agent", restarted)
         replies = [decode(SensorState, r.ok.payload.to_bytes())
-                   for r in bus.session.get(f"{bus.keys.state('n0')}?source=s0;after=0", timeout=5.0) if r.ok]
+                   for r in bus.session.get(f"{bus.keys.state('n0')}?source=s0;after=0", timeout=HUNG) if r.ok]
     finally:
         recent.undeclare()
     assert [state.missed for state in replies] == [before], restarted.log
@@ -433,12 +345,12 @@ def test_raw_samples_a_restarted_replay_sends_again_are_taken_once(tmp_path, zen
     recorder = services("recorder", "--out", str(out), "--net", NET, endpoint=zenoh_router)
     bus.wait_for("sensor_agent", agent)
     bus.wait_for("recorder", recorder)
-    bus.put("raw/n0", RawSample(t=1.0, sensor="n0", value=1))
+    bus.put(KEYS.raw("n0"), RawSample(t=1.0, sensor="n0", value=1))
     bus.tick(1.5, "sensor_agent", agent)
     bus.tick(1.5, "recorder", recorder)
     for sample in (RawSample(t=1.0, sensor="n0", value=1),  # had arrived
                    RawSample(t=2.0, sensor="n0", value=0), RawSample(t=2.0, sensor="n1", value=1)):  # had not
-        bus.session.put(f"{bus.keys.prefix}/raw/{sample.sensor}", encode(sample), attachment=RESENT)
+        bus.session.put(bus.keys.raw(sample.sensor), encode(sample), attachment=RESENT)
     bus.tick(2.5, "sensor_agent", agent)
     bus.tick(2.5, "recorder", recorder)
     assert [(m.t, m.sensor, m.value) for _, m in bus.messages("transition")] == [
@@ -479,7 +391,7 @@ def test_a_restarted_replay_sends_the_samples_of_its_last_ticks_again_first(tmp_
     played = dataset if source == "dataset" else record_dataset(dataset, tmp_path / "ds.mcap")
     state_dir = tmp_path / "state"
     state_dir.mkdir(mode=0o700)
-    bus = Bus(zenoh_router, open_dataset(dataset).deployment, serve_deployment=False)
+    bus = FakeBus(zenoh_router, open_dataset(dataset).deployment, serve_deployment=False)
     lock, seen = threading.Lock(), []  # (kind, payload, marked RESENT) of raw samples and ticks, in arrival order
 
     def on_sample(sample: zenoh.Sample) -> None:
@@ -532,14 +444,14 @@ def test_a_recorder_killed_after_the_last_tick_logs_its_loss_at_the_end_of_strea
     args = ("--out", str(out), "--id", "r0", "--state-dir", str(state_dir), "--net", NET)
     recorder = services("recorder", *args, endpoint=zenoh_router)
     bus.wait_for("recorder", recorder)
-    bus.put("raw/n0", RawSample(t=1.0, sensor="n0", value=1))
+    bus.put(KEYS.raw("n0"), RawSample(t=1.0, sensor="n0", value=1))
     bus.tick(2.0, "recorder", recorder)  # the last tick; the recorder has not flushed it
     recorder.proc.send_signal(signal.SIGKILL)
     assert recorder.wait(HUNG) == -signal.SIGKILL
     wait_until(lambda: not bus.alive("recorder"), "the killed recorder's token to go")
     restarted = services("recorder", *args, endpoint=zenoh_router)
     bus.wait_for("recorder", restarted)
-    bus.put("control/eos", EndOfStream(t=2.0))
+    bus.put(KEYS.eos(), EndOfStream(t=2.0))
     assert restarted.wait(HUNG) == 0, restarted.log
     assert "recorder: restarted; kept the 0 messages recorded before (up to t=0 s)" in restarted.log
     assert ("recording again from t=2 s; the raw samples, transitions and estimates published between t=0 s "
@@ -564,7 +476,7 @@ class Stack:
         self.endpoint = endpoint
         self.services = services
         self.net = ("--net", self.deployment.name)
-        self.bus = Bus(endpoint, self.deployment, serve_deployment=False)  # replay serves it
+        self.bus = FakeBus(endpoint, self.deployment, serve_deployment=False)  # replay serves it
         self.sensor_agents = {half: self.sensor_agent(half) for half in self.halves}
         self.peer_agents = {half: self.peer_agent(half) for half in self.halves}
         self.basestation = services("basestation", "--tracker", TRACKER, *self.net, endpoint=endpoint)
@@ -691,7 +603,7 @@ def test_service_started_before_the_router_waits_then_comes_up(tmp_path, service
     assert waiting[0].endswith("); retrying")
     router = zenoh.open(router_config([endpoint]))
     try:
-        bus = Bus(endpoint)
+        bus = FakeBus(endpoint, DEPLOYMENT)
         try:
             bus.wait_for("sensor_agent", agent)
             assert "ready on bintrack/faults" in agent.log

@@ -13,7 +13,7 @@ from bintrack.live.session_options import client_config
 from bintrack.client import BintrackClient
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, Track, TrackSet, Transition, encode
-from conftest import HUNG, free_port
+from support import HUNG, free_port
 
 NET = "test-client"
 KEYS = Keys(NET)
@@ -33,12 +33,17 @@ def client_for(endpoint: str, **kwargs) -> BintrackClient:
     return BintrackClient(net=NET, connect=[endpoint], wait=5.0, **kwargs)
 
 
-async def matched(publisher: zenoh.Publisher, timeout: float = HUNG) -> zenoh.Publisher:
-    """Wait until the router knows a subscriber for ``publisher``: puts from now on arrive."""
-    deadline = asyncio.get_running_loop().time() + timeout
-    while not publisher.matching_status.matching:
-        assert asyncio.get_running_loop().time() < deadline, f"no subscriber matched {publisher.key_expr}"
+async def until(condition, what: str) -> None:
+    """Wait (on the loop) for ``condition()``; HUNG only fails a hung run."""
+    deadline = asyncio.get_running_loop().time() + HUNG
+    while not condition():
+        assert asyncio.get_running_loop().time() < deadline, f"timed out waiting for {what}"
         await asyncio.sleep(0.01)
+
+
+async def matched(publisher: zenoh.Publisher) -> zenoh.Publisher:
+    """Wait until the router knows a subscriber for ``publisher``: puts from now on arrive."""
+    await until(lambda: publisher.matching_status.matching, f"a subscriber matching {publisher.key_expr}")
     return publisher
 
 
@@ -81,15 +86,30 @@ async def test_iterators_decode_each_kind_and_skip_bad_payloads(zenoh_router, bu
         assert client.bad.counts["not msgpack"] == 1
 
 
-async def test_filters_by_node_and_sensor(zenoh_router, bus):
+@pytest.mark.parametrize("kind", ["estimates", "transitions"])
+async def test_filters_by_node_and_sensor(zenoh_router, bus, kind):
+    """The filtered subscription gets n2's messages only, although n1's reached the client: an
+    unfiltered one on the same client got them all."""
+    if kind == "estimates":
+        key = KEYS.estimate
+        message = lambda node, t: LocalEstimate(t=t, node=node, tracker="arc", x=t, y=0.0)  # noqa: E731
+        source = lambda m: m.node  # noqa: E731
+    else:
+        key = KEYS.transition
+        message = lambda node, t: Transition(t=t, sensor=node, value=1, previous=0, seq=1)  # noqa: E731
+        source = lambda m: m.sensor  # noqa: E731
     async with client_for(zenoh_router) as client:
-        only_n2 = client.estimates(node="n2")
-        publisher_n1 = bus.declare_publisher(KEYS.estimate("n1"))
-        publisher_n2 = await matched(bus.declare_publisher(KEYS.estimate("n2")))
-        publisher_n1.put(encode(LocalEstimate(t=1.0, node="n1", tracker="arc", x=0.0, y=0.0)))
-        publisher_n2.put(encode(LocalEstimate(t=2.0, node="n2", tracker="arc", x=5.0, y=5.0)))
-        assert (await next_of(only_n2)).node == "n2"
-        assert only_n2.received == 1
+        every, only_n2 = getattr(client, kind)(), getattr(client, kind)("n2")
+        # both publishers matched: each put from now on reaches the client
+        publisher_n1 = await matched(bus.declare_publisher(key("n1")))
+        publisher_n2 = await matched(bus.declare_publisher(key("n2")))
+        for t in (1.0, 2.0):
+            publisher_n1.put(encode(message("n1", t)))
+            publisher_n2.put(encode(message("n2", t + 0.5)))
+        got = [await next_of(every) for _ in range(4)]
+        assert sorted((source(m), m.t) for m in got) == [("n1", 1.0), ("n1", 2.0), ("n2", 1.5), ("n2", 2.5)]
+        assert [(source(m), m.t) for m in [await next_of(only_n2), await next_of(only_n2)]] == [("n2", 1.5), ("n2", 2.5)]
+        assert only_n2.received == 2 and every.received == 4
 
 
 async def test_slow_reader_keeps_the_newest_and_counts_the_dropped(zenoh_router, bus):
@@ -98,12 +118,13 @@ async def test_slow_reader_keeps_the_newest_and_counts_the_dropped(zenoh_router,
         publisher = await matched(bus.declare_publisher(KEYS.tracks()))
         for k in range(10):
             publisher.put(encode(scan(float(k))))
-        while tracks.received < 10:   # nobody reads meanwhile
-            await asyncio.sleep(0.01)
+        await until(lambda: tracks.received == 10, "the ten scans")   # nobody reads meanwhile
         assert [(await next_of(tracks)).t for _ in range(3)] == [7.0, 8.0, 9.0]
         assert tracks.dropped == 7 and client.dropped == 7
-        with pytest.raises(TimeoutError):
-            await next_of(tracks, timeout=0.1)
+        # nothing else was kept: the next one read is one published after
+        publisher.put(encode(scan(10.0)))
+        assert (await next_of(tracks)).t == 10.0
+        assert tracks.dropped == 7 and tracks.received == 11
 
 
 async def test_close_ends_iteration_and_undeclares(zenoh_router, bus):
@@ -118,15 +139,11 @@ async def test_close_ends_iteration_and_undeclares(zenoh_router, bus):
 
     reader = asyncio.create_task(read())
     publisher.put(encode(scan(1.0)))
-    while not seen:
-        await asyncio.sleep(0.01)
+    await until(lambda: seen, "the first scan read")
     await client.close()
-    await asyncio.wait_for(reader, 2.0)   # the loop ended by itself
+    await asyncio.wait_for(reader, HUNG)   # the loop ended by itself
     assert seen == [1.0] and tracks.closed
-    deadline = asyncio.get_running_loop().time() + 5.0
-    while publisher.matching_status.matching:   # the router forgot the subscriber
-        assert asyncio.get_running_loop().time() < deadline
-        await asyncio.sleep(0.01)
+    await until(lambda: not publisher.matching_status.matching, "the router to forget the subscriber")
     await client.close()   # twice is harmless
 
 
@@ -141,11 +158,11 @@ async def test_latest_tracks_reads_the_queryable(zenoh_router, bus):
 
     async with client_for(zenoh_router) as client:
         server = asyncio.create_task(answer_one(encode(latest)))
-        assert await client.latest_tracks(timeout=5.0) == latest
+        assert await client.latest_tracks(timeout=HUNG) == latest
         await server
 
         server = asyncio.create_task(answer_one(b"garbage"))
-        assert await client.latest_tracks(timeout=5.0) is None
+        assert await client.latest_tracks(timeout=HUNG) is None
         await server
         assert client.bad.total == 1
 

@@ -30,8 +30,9 @@ import yaml
 import zenoh
 
 from bintrack.client import BintrackClient
+from bintrack.keys import Keys
 from bintrack.messages import TrackSet
-from conftest import HUNG, REPO, free_port
+from support import HUNG, REPO, free_port
 
 COMPOSE = yaml.safe_load((REPO / "docker-compose.yml").read_text())
 SERVICES: dict = COMPOSE["services"]
@@ -245,17 +246,18 @@ def local_args(service: dict, endpoint: str, tmp_path: Path) -> list[str]:
     return args
 
 
-def probe(names: list[str], endpoint: str, deadline: float) -> dict[str, str]:
-    """Run the healthcheck for each service until it passes or ``deadline``; last lines."""
+def probe(names: list[str], endpoint: str) -> dict[str, str]:
+    """Run the healthcheck for each service until it passes (or, a hung stack, for HUNG s); last lines."""
     last: dict[str, str] = {}
     waiting = list(names)
+    deadline = time.monotonic() + HUNG
     while waiting and time.monotonic() < deadline:
         runs = {name: subprocess.Popen([sys.executable, "-m", MODULE_PREFIX + "health", name, "-e", endpoint,
                                         "--net", "darpa-grid", "--timeout", "1", "--wait", "1"],
                                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=REPO)
                 for name in waiting}
         for name, proc in runs.items():
-            out, _ = proc.communicate(timeout=120)  # only a hung probe takes this long
+            out, _ = proc.communicate(timeout=HUNG)
             last[name] = out.strip()
             if proc.returncode == 0:
                 waiting.remove(name)
@@ -275,7 +277,7 @@ def test_the_whole_stack_starts_is_healthy_and_stops_cleanly(zenoh_router, servi
         i = args.index(endpoint)
         started[name] = services(name, *(args[:i - 1] + args[i + 1:]), endpoint=endpoint)
 
-    last = probe(order, zenoh_router, time.monotonic() + HUNG)   # the deadline only fails a hung stack
+    last = probe(order, zenoh_router)
     for name, proc in started.items():
         assert proc.proc.poll() is None, f"{name} exited early ({proc.proc.returncode}):\n{proc.log}"
         assert last[name].startswith(f"health: {name}: alive"), f"{name}: {last[name]}\n{proc.log}"
@@ -285,7 +287,7 @@ def test_the_whole_stack_starts_is_healthy_and_stops_cleanly(zenoh_router, servi
     assert scan.tracker == "mcmcda" and latest is not None and latest.t >= scan.t and bad == 0
     # The view serves the map on its published port, with the deployment in its state.
     port = BINTRACK["view"]["local_port"]
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/state.json", timeout=10) as response:
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/state.json", timeout=HUNG) as response:
         state = json.load(response)
     assert state["deployment"]["name"] == "darpa-grid" and len(state["deployment"]["sensors"]) == 144
 
@@ -300,7 +302,7 @@ def test_the_whole_stack_starts_is_healthy_and_stops_cleanly(zenoh_router, servi
     config.insert_json5("connect/endpoints", json.dumps([zenoh_router]))
     session = zenoh.open(config)
     try:
-        left = [str(r.ok.key_expr) for r in session.liveliness().get("bintrack/darpa-grid/alive/**", timeout=1)
+        left = [str(r.ok.key_expr) for r in session.liveliness().get(Keys("darpa-grid").alive(), timeout=HUNG)
                 if r.ok is not None]
     finally:
         session.close()
@@ -312,6 +314,6 @@ def test_the_whole_stack_starts_is_healthy_and_stops_cleanly(zenoh_router, servi
 async def first_tracks(endpoint: str) -> tuple[TrackSet, TrackSet | None, int]:
     """The next TrackSet published on darpa-grid, then the ``tracks`` queryable's answer."""
     async with BintrackClient(net="darpa-grid", connect=[endpoint], wait=5.0) as client:
-        scan = await asyncio.wait_for(anext(client.tracks()), 20.0)
-        latest = await client.latest_tracks(timeout=5.0)
+        scan = await asyncio.wait_for(anext(client.tracks()), HUNG)
+        latest = await client.latest_tracks(timeout=HUNG)
         return scan, latest, client.bad.total

@@ -16,7 +16,7 @@ import zenoh
 from bintrack.keys import Keys
 from bintrack.live.session_options import client_config
 from bintrack.messages import TrackSet, decode
-from conftest import REPO, free_port
+from support import DATASETS, HUNG, REPO, free_port
 from test_compose import MODULE_PREFIX, container_argv, dependency_order, local_args, option_values, uses_our_build
 from test_mesh import RouterProcess
 
@@ -42,7 +42,7 @@ def test_two_sites_each_with_the_official_router_image_and_the_same_pinned_versi
                      if s["command"][0] == MODULE_PREFIX + "basestation")
     from bintrack.formats import open_dataset
 
-    assert regions == [r.name for r in open_dataset(REPO / "datasets" / "darpa-grid-3-sites").deployment.regions]
+    assert regions == [r.name for r in open_dataset(DATASETS / "darpa-grid-3-sites").deployment.regions]
 
 
 def test_each_service_but_the_map_keeps_its_checkpoint_in_its_sites_state_volume():
@@ -102,8 +102,8 @@ def test_the_two_site_stack_runs_as_local_processes(services, tmp_path):
                                        lambda s: decode(TrackSet, s.payload.to_bytes()) and remote.set()),
         ]
         try:
-            assert remote.wait(120), "site B's region tracks never reached site A:\n" + started["basestation_b"].log
-            assert merged.wait(60), "no merged tracks:\n" + started["merge"].log
+            assert remote.wait(HUNG), "site B's region tracks never reached site A:\n" + started["basestation_b"].log
+            assert merged.wait(HUNG), "no merged tracks:\n" + started["merge"].log
         finally:
             for subscriber in subscribers:
                 subscriber.undeclare()
@@ -113,7 +113,7 @@ def test_the_two_site_stack_runs_as_local_processes(services, tmp_path):
         for name in reversed(list(started)):
             started[name].proc.send_signal(signal.SIGTERM)
         for name in reversed(list(started)):
-            assert started[name].wait(timeout=20) == 0, f"{name} on SIGTERM:\n{started[name].log}"
+            assert started[name].wait() == 0, f"{name} on SIGTERM:\n{started[name].log}"
         for router in reversed(routers):
             assert router.stop() == 0
         # each service left its checkpoint in its own site's volume

@@ -7,7 +7,6 @@ from __future__ import annotations
 import subprocess
 import sys
 import threading
-import time
 
 import msgpack
 import zenoh
@@ -18,14 +17,9 @@ from bintrack.live.session_options import client_config, open_session
 from bintrack.live.control_guard import control_attachment
 from bintrack.messages import Clock, Deployment, EndOfStream, decode, encode
 
-from conftest import REPO, free_port
+from support import DATASETS, HUNG, REPO, bintrack, free_port, wait_until
 
-DARPA3 = REPO / "datasets" / "darpa-grid-3"
-
-
-def bintrack(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bintrack.cli", *args], capture_output=True, text=True,
-                          timeout=180, cwd=REPO)
+DARPA3 = DATASETS / "darpa-grid-3"
 
 
 def test_forged_clock_and_end_of_stream_do_not_change_the_run(tmp_path):
@@ -42,21 +36,21 @@ def test_forged_clock_and_end_of_stream_do_not_change_the_run(tmp_path):
     reader = threading.Thread(target=lambda: log.extend(up.stderr), daemon=True)
     reader.start()
     first_tick = threading.Event()
-    forger = open_session(client_config([endpoint]), wait=60)
+    forger = open_session(client_config([endpoint]), wait=HUNG)
     try:
         subscriber = forger.declare_subscriber(keys.clock(), lambda s: first_tick.set())
-        assert first_tick.wait(120), "".join(log)
+        assert first_tick.wait(HUNG), "".join(log)
         # the two forgeries: an anonymous clock far ahead, an end of stream mid-run
         # from a sender that claims to be a replay but holds no token
         forger.put(keys.clock(), encode(Clock(t=1e6)))
         forger.put(keys.eos(), encode(EndOfStream(t=30.0)), attachment=control_attachment("replay", "intruder"))
-        assert up.wait(180) == 0, "".join(log)
+        assert up.wait(HUNG) == 0, "".join(log)
         subscriber.undeclare()
     finally:
         forger.close()
         if up.poll() is None:
             up.kill()
-        reader.join(10)
+        reader.join(HUNG)
     text = "".join(log)
     assert "forged control: clock from an anonymous sender" in text, text
     assert "forged control: eos from replay/intruder, which holds no" in text, text
@@ -91,15 +85,13 @@ def test_a_replay_clock_that_jumps_too_far_is_rejected(zenoh_router, services):
                 session.liveliness().declare_token(keys.alive("replay", "t1"))]
     agent = services("sensor_agent", "--net", "tiny", endpoint=zenoh_router)
     try:
-        deadline = time.monotonic() + 30
-        while not [r for r in session.liveliness().get(keys.alive("sensor_agent"), timeout=1.0) if r.ok]:
-            assert time.monotonic() < deadline and agent.proc.poll() is None, agent.log
-            time.sleep(0.1)
+        wait_until(lambda: [r for r in session.liveliness().get(keys.alive("sensor_agent"), timeout=HUNG) if r.ok],
+                   "the sensor agent's token", logs=[agent], interval=0.1)
         with got:
             attachment = control_attachment("replay", "t1", step=0.5)
             for t in (0.0, 0.5, 1000.0, 1.0):
                 session.put(keys.clock(), encode(Clock(t=t)), attachment=attachment)
-            assert got.wait_for(lambda: 1.0 in progress, 30), agent.log
+            assert got.wait_for(lambda: 1.0 in progress, HUNG), agent.log
     finally:
         for entity in entities:
             entity.undeclare()

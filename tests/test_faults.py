@@ -28,14 +28,9 @@ from bintrack.messages import Clock, RawSample, decode, encode
 from bintrack.live.recording import open_recording
 from bintrack.live.stack import stack_commands
 
-from conftest import HUNG, REPO, free_port
+from support import DATASETS, HUNG, REPO, bintrack, free_port, rss_kb, wait_logged
 
-DARPA3 = REPO / "datasets" / "darpa-grid-3"
-
-
-def bintrack(*args: str, timeout: float = HUNG) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bintrack.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, cwd=REPO)
+DARPA3 = DATASETS / "darpa-grid-3"
 
 
 @pytest.fixture(scope="module")
@@ -141,7 +136,7 @@ class Up:
 
     def finish(self) -> int:
         code = self.proc.wait(timeout=HUNG)
-        self.reader.join(timeout=10)
+        self.reader.join(timeout=HUNG)
         return code
 
 
@@ -227,7 +222,7 @@ def test_services_end_when_up_is_killed(grid_slice):
     assert len(pids) == 3
     up.proc.kill()
     up.finish()
-    assert [pid for pid in pids if not wait_gone(pid, 30.0)] == []
+    assert [pid for pid in pids if not wait_gone(pid, HUNG)] == []
 
 
 ROUTER = """
@@ -288,24 +283,6 @@ def test_router_killed_and_restarted_loses_nothing(grid_slice, offline_rows, tmp
     assert "holding event time" in procs["replay"].log
     assert exported_tracks(recording, tmp_path) == offline_rows("mcmcda"), "\n".join(
         p.log[-3000:] for p in procs.values())
-
-
-def wait_logged(proc, condition, what: str) -> None:
-    """Wait until ``condition(log)`` holds for the service's log (polled: it is a file)."""
-    import time
-
-    deadline = time.monotonic() + HUNG
-    while not condition(proc.log):
-        assert proc.proc.poll() is None or condition(proc.log), f"{proc.name} ended before {what}:\n{proc.log[-3000:]}"
-        assert time.monotonic() < deadline, f"no {what}:\n{proc.log[-3000:]}"
-        time.sleep(0.05)
-
-
-def rss_kb(pid: int) -> int:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1])
-    raise AssertionError(f"no VmRSS for {pid}")
 
 
 BURSTS = 8

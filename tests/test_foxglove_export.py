@@ -4,8 +4,6 @@ foxglove.SceneUpdate channel, read back with the mcap reader and validated with 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import jsonschema
 from mcap.reader import make_reader
@@ -14,14 +12,9 @@ from bintrack.formats import read_deployment
 from bintrack.messages import (Clock, PositionReport, PositionReports, Track, TrackSet, Transition, TruthSample,
                                encode)
 from bintrack.live.recording import RecordingWriter, open_recording
-from conftest import HUNG, REPO
+from support import DATASETS, bintrack
 
-DARPA3 = REPO / "datasets" / "darpa-grid-3"
-
-
-def bintrack(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bintrack.cli", *args], capture_output=True, text=True, cwd=REPO,
-                          timeout=HUNG)
+DARPA3 = DATASETS / "darpa-grid-3"
 
 
 def make_recording(path):

@@ -3,19 +3,17 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 
 import pytest
 import zenoh
 
 from bintrack.live.session_options import client_config
 from bintrack.keys import Keys
-from conftest import HUNG, REPO, free_port
+from support import free_port, python_module
 
 
 def health(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bintrack.services.health", *args],
-                          capture_output=True, text=True, timeout=HUNG, cwd=REPO)
+    return python_module("bintrack.services.health", *args)
 
 
 @pytest.fixture

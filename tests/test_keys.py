@@ -6,13 +6,12 @@ docs table of keys lists every kind."""
 import inspect
 import itertools
 import re
-from pathlib import Path
 
 import pytest
 
 from bintrack.keys import KIND, KINDS, Keys, ParsedKey, parse_key
+from support import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 FIELD_VALUES = {"sensor": "n1", "region": "r0c1", "service": "peer_agent", "instance": "p1"}
 
 # The bus format, written out: a kind added to KINDS must be added here (the test below says so).

@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import argparse
 import random
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -33,15 +30,10 @@ from bintrack.live.stack import stack_commands
 from bintrack.trackers import BASELINES, make_tracker
 from bintrack.transition_detector import TransitionDetector
 
-from conftest import HUNG, REPO, free_port
+from support import DATASETS, HUNG, REPO, bintrack, free_port, wait_until
 
-DARPA3 = REPO / "datasets" / "darpa-grid-3"
-LASER = REPO / "datasets" / "laser-testbed"
-
-
-def bintrack(*args: str, timeout: float = HUNG) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bintrack.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, cwd=REPO)
+DARPA3 = DATASETS / "darpa-grid-3"
+LASER = DATASETS / "laser-testbed"
 
 
 def live_and_offline(dataset: Path, tracker: str, tmp: Path, speed: str = "0",
@@ -168,18 +160,14 @@ def test_transitions_in_shuffled_order_within_the_lateness_bound(tmp_path, zenoh
              services("basestation", "--tracker", "equal-weight", *bus, endpoint=zenoh_router),
              services("recorder", "--out", str(recording), *bus, endpoint=zenoh_router)]
     try:
-        deadline = time.monotonic() + 60
-        while len({str(r.ok.key_expr) for r in session.liveliness().get(keys.alive(), timeout=1.0)
-                   if r.ok is not None and "/alive/replay/" not in str(r.ok.key_expr)}) < 3:
-            assert time.monotonic() < deadline, [p.log for p in procs]
-            time.sleep(0.1)
+        wait_until(lambda: len({str(r.ok.key_expr) for r in session.liveliness().get(keys.alive(), timeout=HUNG)
+                                if r.ok is not None and "/alive/replay/" not in str(r.ok.key_expr)}) >= 3,
+                   "the three services' liveliness tokens", logs=procs, interval=0.1)
 
         def tick(t: float) -> None:
             session.put(keys.clock(), encode(Clock(t=t)), attachment=control)
-            deadline = time.monotonic() + 30
-            while len(progress) < 3 or min(progress.values()) < t:
-                assert time.monotonic() < deadline, (progress, [p.log for p in procs])
-                time.sleep(0.002)
+            wait_until(lambda: len(progress) >= 3 and min(progress.values()) >= t, f"progress {t} from all three",
+                       logs=procs, interval=0.002)
 
         for block in sorted(blocks):
             shuffled = blocks[block][:]
@@ -189,10 +177,7 @@ def test_transitions_in_shuffled_order_within_the_lateness_bound(tmp_path, zenoh
             tick((block + 1) * 0.4)
         tick((max(blocks) + 2) * 0.4)
         session.put(keys.eos(), encode(EndOfStream(t=transitions[-1].t)), attachment=control)
-        deadline = time.monotonic() + 60
-        while not any("/recorder/" in key for key in done):
-            assert time.monotonic() < deadline, [p.log for p in procs]
-            time.sleep(0.05)
+        wait_until(lambda: any("/recorder/" in key for key in done), "the recorder's done", logs=procs)
     finally:
         for entity in entities:
             entity.undeclare()

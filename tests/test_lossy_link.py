@@ -24,7 +24,8 @@ from bintrack.live.sequence_checks import SequenceCheck, SourceCheck
 from bintrack.live.watermark import UpstreamWatermark
 from bintrack.transition_detector import TransitionDetector
 
-from conftest import HUNG, REPO, write_foreign_dataset
+from conftest import write_foreign_dataset
+from support import DATASETS, HUNG
 
 TRACKER = "equal-weight"
 CHAIN = ("sensor_agent", "peer_agent", "basestation", "recorder")
@@ -148,7 +149,7 @@ def foreign(tmp_path_factory) -> Path:
     return write_foreign_dataset(tmp_path_factory.mktemp("lossy") / "foreign", nodes=400, speed=4.0)
 
 
-DATASETS = {"foreign": None, "darpa-grid-1": REPO / "datasets" / "darpa-grid-1"}
+SOURCES = {"foreign": None, "darpa-grid-1": DATASETS / "darpa-grid-1"}
 
 
 def run_chain(dataset: Path, out: Path, endpoint: str, services, lose: int) -> dict:
@@ -163,16 +164,16 @@ def run_chain(dataset: Path, out: Path, endpoint: str, services, lose: int) -> d
     }
     replay = services("replay", str(dataset), "--speed", "0", "--wait-for", ",".join(CHAIN), endpoint=endpoint)
     assert replay.wait(HUNG) == 0, replay.log
-    assert procs["recorder"].wait(60) == 0, procs["recorder"].log
+    assert procs["recorder"].wait(HUNG) == 0, procs["recorder"].log
     for name in ("sensor_agent", "peer_agent", "basestation"):
         assert procs[name].stop() == 0, procs[name].log
     return {name: proc.log for name, proc in procs.items()}
 
 
 @pytest.mark.parametrize("lose", [3, 0], ids=["lose-3", "lossless"])
-@pytest.mark.parametrize("name", DATASETS)
+@pytest.mark.parametrize("name", SOURCES)
 def test_receiver_recovers_every_lost_transition(name, lose, foreign, tmp_path, zenoh_router, services):
-    dataset = DATASETS[name] or foreign
+    dataset = SOURCES[name] or foreign
     ds = open_dataset(dataset)
     detector = TransitionDetector(ds.deployment)
     offline = [t for e in ds.events() if (t := detector.update(e)) is not None]

@@ -8,14 +8,13 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import pytest
 import zenoh
 
 from bintrack.live.session_options import client_config
-from conftest import REPO, free_port
+from support import HUNG, REPO, free_port, python_module, wait_logged, wait_until
 
 
 class RouterProcess:
@@ -43,19 +42,14 @@ class RouterProcess:
             self._log.flush()
         return self.log_path.read_text()
 
-    def wait_logged(self, text: str, what: str, timeout: float = 20.0, count: int = 1) -> float:
-        """Wait until ``text`` appears ``count`` times in the log; monotonic time it did."""
-        deadline = time.monotonic() + timeout
-        while self.log.count(text) < count:
-            assert self.proc.poll() is None or text in self.log, f"router {self.name} ended: {self.log}"
-            assert time.monotonic() < deadline, f"router {self.name}: no {what} within {timeout} s:\n{self.log}"
-            time.sleep(0.05)
-        return time.monotonic()
+    def wait_logged(self, text: str, what: str, count: int = 1) -> None:
+        """Wait until ``text`` appears ``count`` times in the log."""
+        wait_logged(self, text, what, count)
 
     def stop(self, sig: int = signal.SIGTERM) -> int:
         if self.proc.poll() is None:
             self.proc.send_signal(sig)
-        code = self.proc.wait(timeout=20)
+        code = self.proc.wait(timeout=HUNG)
         self._log.close()
         return code
 
@@ -98,14 +92,20 @@ def test_a_sample_crosses_a_chain_of_three_routers(chain):
     try:
         publisher = publisher_session.declare_publisher("mesh/test/a")
         # the subscription spreads through the mesh: publish until the first sample is through
-        deadline = time.monotonic() + 10
-        while not received and time.monotonic() < deadline:
+        def through() -> bool:
+            if received:
+                return True
             publisher.put(b"probe")
-            time.sleep(0.05)
+            return False
+
+        wait_until(through, "a probe through the mesh", interval=0.05)
+        # the probes still on their way arrive before this one (one publisher: in order)
+        publisher.put(b"last probe")
+        wait_until(lambda: received[-1] == b"last probe", "the last probe")
         received.clear()
         for i in range(20):
             publisher.put(str(i).encode())
-        assert arrived.wait(10), received
+        assert arrived.wait(HUNG), received
         assert received == [str(i).encode() for i in range(20)]  # all, in order
     finally:
         subscriber.undeclare()
@@ -113,13 +113,12 @@ def test_a_sample_crosses_a_chain_of_three_routers(chain):
         publisher_session.close()
 
 
-def test_killing_the_middle_router_is_logged_by_the_others_within_two_seconds(chain):
+def test_killing_the_middle_router_is_logged_by_the_others(chain):
     first, middle, last = chain
     middle.proc.kill()
-    killed = time.monotonic()
     middle.proc.wait()
-    seen = [router.wait_logged(" left", "the middle router leaving", timeout=5) - killed for router in (first, last)]
-    assert max(seen) < 2.0, seen
+    for router in (first, last):
+        router.wait_logged(" left", "the middle router leaving")
     assert all(f"router {middle_zid(middle)} left" in r.log for r in (first, last))
 
 
@@ -135,7 +134,6 @@ def test_sigterm_ends_a_router_cleanly_and_its_neighbour_logs_it(chain):
 
 
 def test_a_router_without_listen_endpoint_is_refused(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "bintrack.services.router"], capture_output=True, text=True,
-                            cwd=REPO, timeout=30)
+    result = python_module("bintrack.services.router")
     assert result.returncode == 2
     assert "give at least one -l/--listen endpoint" in result.stderr

@@ -5,16 +5,13 @@ from __future__ import annotations
 
 import json
 import signal
-import time
 
 import msgpack
 import pytest
-import zenoh
 from mcap.reader import make_reader
 
-from bintrack.live.session_options import client_config
-from bintrack.live.control_guard import control_attachment
 from bintrack.cli import main as cli
+from bintrack.keys import Keys
 from bintrack.formats import FormatError, ObjectRow, TrackRow, read_objects, read_tracks
 from bintrack.messages import (
     Clock,
@@ -33,7 +30,7 @@ from bintrack.messages import (
 )
 from bintrack.live.recording import RecordingWriter, log_time_ns, open_recording, replay_items, shift_payload
 
-from conftest import HUNG
+from support import HUNG, FakeBus
 
 
 def output(process) -> str:
@@ -52,8 +49,11 @@ def write(path, records, net="rec"):
     return path
 
 
+KEYS = Keys("rec")
+
+
 def raw(t, sensor="n0", value=1):
-    return f"bintrack/rec/raw/{sensor}", RawSample(t=t, sensor=sensor, value=value)
+    return KEYS.raw(sensor), RawSample(t=t, sensor=sensor, value=value)
 
 
 # --------------------------------------------------------------------------- files
@@ -150,51 +150,9 @@ def test_times_payload_shift_and_replay_items(tmp_path):
 # --------------------------------------------------------------------------- the recorder, live
 
 
-class Bus:
-    """A test's own client session: serves the deployment and publishes by hand."""
-
-    def __init__(self, endpoint: str, deployment: Deployment = DEPLOYMENT):
-        self.session = zenoh.open(client_config([endpoint]))
-        self.net = deployment.name
-        payload = encode(deployment)
-        self.queryable = self.session.declare_queryable(
-            f"bintrack/{self.net}/deployment", lambda query: query.reply(f"bintrack/{self.net}/deployment", payload))
-        self.progress: list[float] = []
-        self.subscriber = self.session.declare_subscriber(
-            f"bintrack/{self.net}/control/progress/recorder/*",
-            lambda sample: self.progress.append(msgpack.unpackb(sample.payload.to_bytes())["t"]))
-        # it plays the replay's part: clock and end of stream come from a replay token's holder
-        self.token = self.session.liveliness().declare_token(f"bintrack/{self.net}/alive/replay/test")
-        self.control = control_attachment("replay", "test")
-
-    def put(self, suffix: str, payload) -> None:
-        self.session.put(f"bintrack/{self.net}/{suffix}", payload if isinstance(payload, bytes) else encode(payload),
-                         attachment=self.control)
-
-    def wait_for(self, service: str, timeout: float = HUNG) -> None:
-        deadline = time.monotonic() + timeout
-        while not [r for r in self.session.liveliness().get(f"bintrack/{self.net}/alive/{service}/*") if r.ok]:
-            assert time.monotonic() < deadline, f"{service} never came up"
-            time.sleep(0.1)
-
-    def tick(self, t: float, timeout: float = HUNG) -> None:
-        """Publish a clock tick and wait for the recorder's progress report of it."""
-        self.put("clock", Clock(t=t))
-        deadline = time.monotonic() + timeout
-        while t not in self.progress:
-            assert time.monotonic() < deadline, "no progress report from the recorder"
-            time.sleep(0.02)
-
-    def close(self) -> None:
-        self.token.undeclare()
-        self.subscriber.undeclare()
-        self.queryable.undeclare()
-        self.session.close()
-
-
 @pytest.fixture
 def bus(zenoh_router):
-    handle = Bus(zenoh_router)
+    handle = FakeBus(zenoh_router, DEPLOYMENT)
     yield handle
     handle.close()
 
@@ -203,15 +161,15 @@ def test_bad_payloads_are_counted_not_recorded_and_the_recorder_goes_on(tmp_path
     out = tmp_path / "bad.mcap"
     recorder = services("recorder", "--out", str(out), "--net", "rec", endpoint=zenoh_router)
     bus.wait_for("recorder")
-    bus.put("raw/n0", b"\xc1\xff garbage")
-    bus.put("raw/n1", msgpack.packb({"version": 1, "temperature": 20}))
-    bus.put("raw/n2", msgpack.packb({"version": 1, "t": float("nan"), "sensor": "n2", "value": 1}))
-    bus.put("raw/n2", msgpack.packb({"version": 1, "t": float("nan"), "sensor": "n2", "value": 1}))
-    bus.put("no/such/key", encode(Clock(t=1.0)))
-    bus.put("raw/n3", RawSample(t=1.0, sensor="n3", value=1))
-    bus.tick(1.5)
+    bus.put(KEYS.raw("n0"), b"\xc1\xff garbage")
+    bus.put(KEYS.raw("n1"), msgpack.packb({"version": 1, "temperature": 20}))
+    bus.put(KEYS.raw("n2"), msgpack.packb({"version": 1, "t": float("nan"), "sensor": "n2", "value": 1}))
+    bus.put(KEYS.raw("n2"), msgpack.packb({"version": 1, "t": float("nan"), "sensor": "n2", "value": 1}))
+    bus.put(f"{KEYS.prefix}/no/such/key", encode(Clock(t=1.0)))
+    bus.put(KEYS.raw("n3"), RawSample(t=1.0, sensor="n3", value=1))
+    bus.tick(1.5, "recorder")
     assert recorder.proc.poll() is None
-    bus.put("control/eos", EndOfStream(t=1.0))
+    bus.put(KEYS.eos(), EndOfStream(t=1.0))
     assert recorder.wait(HUNG) == 0
     log = output(recorder)
     assert "5 bad payloads" in log, log
@@ -224,18 +182,24 @@ def test_bad_payloads_are_counted_not_recorded_and_the_recorder_goes_on(tmp_path
 def test_recorder_waits_for_upstream_done_before_finalising(tmp_path, zenoh_router, services, bus):
     out = tmp_path / "up.mcap"
     recorder = services("recorder", "--out", str(out), "--net", "rec", endpoint=zenoh_router)
-    token = bus.session.liveliness().declare_token("bintrack/rec/alive/basestation/b1")
+    token = bus.session.liveliness().declare_token(KEYS.alive("basestation", "b1"))
     try:
         bus.wait_for("recorder")
-        bus.put("control/eos", EndOfStream(t=2.0))
-        bus.put("tracks", TrackSet(t=2.0, tracker="mcmcda", tracks=[Track(track=1, x=1.0, y=2.0)]))
-        time.sleep(0.5)
+        bus.put(KEYS.eos(), EndOfStream(t=2.0))
+        bus.put(KEYS.tracks(), TrackSet(t=2.0, tracker="mcmcda", tracks=[Track(track=1, x=1.0, y=2.0)]))
+        # Not finalised: ticks after the end of stream are still recorded and acknowledged. The
+        # first is handled after the end of stream, which woke the recorder's main loop; the
+        # second comes after that wake-up had its turn (it was scheduled before the first
+        # tick's acknowledgement went out), and a finalised recorder would drop it unanswered.
+        bus.tick(2.5, "recorder")
+        bus.tick(3.0, "recorder")
         assert recorder.proc.poll() is None, "finalised before the base station was done"
-        bus.put("control/done/basestation/b1", EndOfStream(t=2.0))
+        bus.put(KEYS.done("basestation", "b1"), EndOfStream(t=2.0))
         assert recorder.wait(HUNG) == 0, output(recorder)
     finally:
         token.undeclare()
-    assert [r.kind for r in open_recording(out).records()] == ["eos", "tracks", "done"]
+    # in log-time (event-time) order: the done at t=2 before the ticks after it
+    assert [r.kind for r in open_recording(out).records()] == ["eos", "tracks", "done", "clock", "clock"]
 
 
 @pytest.mark.parametrize("how", ["SIGTERM", "SIGKILL"])
@@ -244,8 +208,8 @@ def test_a_stopped_recorder_leaves_a_readable_file(tmp_path, zenoh_router, servi
     recorder = services("recorder", "--out", str(out), "--net", "rec", endpoint=zenoh_router)
     bus.wait_for("recorder")
     for i in range(50):
-        bus.put(f"raw/n{i % 4}", RawSample(t=i / 10, sensor=f"n{i % 4}", value=i % 2))
-    bus.tick(5.0)
+        bus.put(KEYS.raw(f"n{i % 4}"), RawSample(t=i / 10, sensor=f"n{i % 4}", value=i % 2))
+    bus.tick(5.0, "recorder")
     recorder.proc.send_signal(getattr(signal, how))
     code = recorder.wait(HUNG)
     recording = open_recording(out)
@@ -263,16 +227,16 @@ def test_export_of_hand_published_results(tmp_path, zenoh_router, services, bus,
     recorder = services("recorder", "--out", str(out), "--net", "rec", endpoint=zenoh_router)
     bus.wait_for("recorder")
     # published out of order: exports are sorted whatever the arrival order
-    bus.put("tracks", TrackSet(t=2.0, tracker="mcmcda", tracks=[Track(track=2, x=5.0, y=1.0),
+    bus.put(KEYS.tracks(), TrackSet(t=2.0, tracker="mcmcda", tracks=[Track(track=2, x=5.0, y=1.0),
                                                                 Track(track=1, x=3.0, y=4.0, vx=0.5, vy=-0.5)]))
-    bus.put("tracks", TrackSet(t=1.0, tracker="mcmcda", tracks=[Track(track=1, x=2.0, y=4.0)]))
-    bus.put("peer/n2/estimate", LocalEstimate(t=1.5, node="n2", tracker="arc", x=2.5, y=1.0, vx=1.0, vy=0.0))
-    bus.put("peer/n1/estimate", LocalEstimate(t=0.5, node="n1", tracker="arc", x=1.5, y=1.2))
+    bus.put(KEYS.tracks(), TrackSet(t=1.0, tracker="mcmcda", tracks=[Track(track=1, x=2.0, y=4.0)]))
+    bus.put(KEYS.estimate("n2"), LocalEstimate(t=1.5, node="n2", tracker="arc", x=2.5, y=1.0, vx=1.0, vy=0.0))
+    bus.put(KEYS.estimate("n1"), LocalEstimate(t=0.5, node="n1", tracker="arc", x=1.5, y=1.2))
     obj = dict(t_first=0.0, t_last=3.0, entry_x=0.0, entry_y=1.0, exit_x=10.0, exit_y=2.0, vy=0.1)
-    bus.put("laser/objects", LineObjectEstimate(object=1, vx=3.0, **obj))
-    bus.put("laser/objects", LineObjectEstimate(object=1, vx=3.5, **obj))  # refined later: the last one counts
-    bus.put("motion/velocity", VelocityEstimate(t=1.0, method="motion-rw", vx=1.0, vy=2.0, x=3.0, y=4.0))
-    bus.put("control/eos", EndOfStream(t=3.0))
+    bus.put(KEYS.laser_objects(), LineObjectEstimate(object=1, vx=3.0, **obj))
+    bus.put(KEYS.laser_objects(), LineObjectEstimate(object=1, vx=3.5, **obj))  # refined later: the last one counts
+    bus.put(KEYS.motion_velocity(), VelocityEstimate(t=1.0, method="motion-rw", vx=1.0, vy=2.0, x=3.0, y=4.0))
+    bus.put(KEYS.eos(), EndOfStream(t=3.0))
     assert recorder.wait(HUNG) == 0, output(recorder)
 
     def export(what: str) -> str:

@@ -3,7 +3,7 @@
 and a base station per region (two regions on the middle router, two on the last), the merge
 and replay on the first. The merged ``tracks`` are those of the same objects offline
 (``bintrack track --regions``), and are compared with one base station over the whole field;
-then a region's base station and the middle router are killed and the others log it within 2 s.
+then a region's base station and the middle router are killed and the others log it.
 Also under ``bintrack up --regions 4``: the same rows, with services killed and restarted, and
 under the secure profile.
 """
@@ -12,10 +12,7 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
-import sys
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -26,7 +23,7 @@ from bintrack.formats import TrackRow, read_tracks
 from bintrack.keys import Keys
 from bintrack.live.session_options import client_config
 from bintrack.messages import Clock, TrackSet, decode
-from conftest import REPO, free_port
+from support import HUNG, bintrack, free_port, wait_logged
 from test_mesh import start_chain
 
 pytestmark = pytest.mark.slow
@@ -35,27 +32,13 @@ REGIONS = ["r0c0", "r0c1", "r1c0", "r1c1"]
 SEED = 21  # not one of the seeds the merge's defaults were chosen on (10–13)
 
 
-def bintrack(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bintrack.cli", *args], capture_output=True, text=True, cwd=cwd,
-                          timeout=600, check=True)
-
-
 @pytest.fixture(scope="module")
 def field(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("regions")
-    bintrack("simulate", "darpa-grid", "--out", "field", "--regions", "2x2", "--seed", str(SEED), cwd=folder)
-    bintrack("track", "field", "--tracker", "mcmcda", "--out", "whole.csv", cwd=folder)
-    bintrack("track", "field", "--tracker", "mcmcda", "--regions", "--out", "regions.csv", cwd=folder)
+    bintrack("simulate", "darpa-grid", "--out", "field", "--regions", "2x2", "--seed", str(SEED), cwd=folder, check=True)
+    bintrack("track", "field", "--tracker", "mcmcda", "--out", "whole.csv", cwd=folder, check=True)
+    bintrack("track", "field", "--tracker", "mcmcda", "--regions", "--out", "regions.csv", cwd=folder, check=True)
     return folder
-
-
-def wait_logged(proc, text: str, timeout: float) -> float:
-    """Monotonic time at which ``text`` showed in ``proc``'s log (fails after ``timeout`` s)."""
-    deadline = time.monotonic() + timeout
-    while text not in proc.log:
-        assert time.monotonic() < deadline, f"{proc.name}: no {text!r} within {timeout} s:\n{proc.log[-3000:]}"
-        time.sleep(0.02)
-    return time.monotonic()
 
 
 def test_merged_tracks_on_a_chain_of_three_routers(field, services, tmp_path):
@@ -81,8 +64,8 @@ def test_merged_tracks_on_a_chain_of_three_routers(field, services, tmp_path):
         try:
             replay = services("replay", str(field / "field"), "--speed", "0", "--net", net, "--wait-for",
                               "sensor_agent*4,basestation*4,merge", endpoint=hub.listen)
-            assert done.wait(400), f"the merge never finished:\n{merge.log[-3000:]}\n{replay.log[-2000:]}"
-            assert replay.wait(60) == 0
+            assert done.wait(HUNG), f"the merge never finished:\n{merge.log[-3000:]}\n{replay.log[-2000:]}"
+            assert replay.wait() == 0
         finally:
             for subscriber in subscribers:
                 subscriber.undeclare()
@@ -104,17 +87,16 @@ def test_merged_tracks_on_a_chain_of_three_routers(field, services, tmp_path):
         print(f"\nregions vs whole field, seed {SEED}: {whole.summary()}")
         assert whole.count_equal >= 0.6 * whole.scans and whole.within(2.0) >= 0.9
 
-        # losing a site: a region's base station is killed; the merge logs it within 2 s
+        # losing a site: a region's base station is killed; the merge logs it (its token went)
         stations["r1c1"].proc.kill()
-        killed = time.monotonic()
-        seen = wait_logged(merge, "region r1c1's base station is gone", 5) - killed
-        assert seen < 2.0, seen
+        wait_logged(merge, "region r1c1's base station is gone")
         # the middle router: the hub and the last router log it, the merge loses r0c0 and r0c1
         middle.proc.kill()
-        killed = time.monotonic()
-        seen = [router.wait_logged(" left", "the middle router leaving", timeout=5) - killed for router in (hub, last)]
-        seen += [wait_logged(merge, f"region {r}'s base station is gone", 5) - killed for r in ("r0c0", "r0c1")]
-        assert max(seen) < 2.0, seen
+        for router in (hub, last):
+            router.wait_logged(" left", "the middle router leaving")
+        for region in ("r0c0", "r0c1"):
+            wait_logged(merge, f"region {region}'s base station is gone")
+        assert merge.log.count("base station is gone") == 3, merge.log[-3000:]
     finally:
         for router in routers:
             if router.proc.poll() is None:
@@ -126,14 +108,12 @@ def test_up_with_regions_runs_a_router_and_a_base_station_per_region_and_merges(
     """``bintrack up --regions 4``: four routers on 127.0.0.2–5 meshed with up's own, the merge;
     the recorded ``tracks`` are the offline ``bintrack track --regions`` rows."""
     recording = tmp_path / "run.mcap"
-    result = subprocess.run([sys.executable, "-m", "bintrack.cli", "up", str(field / "field"), "--tracker", "mcmcda",
-                             "--regions", "4", "--speed", "0", "--exit-at-end", "--no-map", "--record", str(recording),
-                             "--listen", f"tcp/127.0.0.1:{free_port()}"],
-                            capture_output=True, text=True, cwd=REPO, timeout=600)
+    result = bintrack("up", str(field / "field"), "--tracker", "mcmcda", "--regions", "4", "--speed", "0",
+                      "--exit-at-end", "--no-map", "--record", str(recording), "--listen", f"tcp/127.0.0.1:{free_port()}")
     assert result.returncode == 0, result.stderr[-3000:]
     for i, region in enumerate(REGIONS):
         assert f"router {region} (" in result.stderr and f"tcp/127.0.0.{i + 2}:" in result.stderr
-    bintrack("export", str(recording), "--what", "tracks", "--out", str(tmp_path / "live.csv"), cwd=tmp_path)
+    bintrack("export", str(recording), "--what", "tracks", "--out", str(tmp_path / "live.csv"), cwd=tmp_path, check=True)
     live, offline = read_tracks(tmp_path / "live.csv"), read_tracks(field / "regions.csv")
     assert [(r.t, r.track) for r in live] == [(r.t, r.track) for r in offline]
     assert max(abs(a.x - b.x) + abs(a.y - b.y) for a, b in zip(live, offline)) < 1e-6
@@ -141,8 +121,7 @@ def test_up_with_regions_runs_a_router_and_a_base_station_per_region_and_merges(
 
 def test_a_lost_region_is_logged_at_once_and_its_tracks_turn_stale_while_the_others_go_on(field, services,
                                                                                           zenoh_router):
-    """Mid-run, the base station of a region that has a track is killed: the merge logs it within
-    2 s, shows no track of that region as live past the last scan the station published (those
+    """Mid-run, the base station of a region that has a track is killed: the merge logs it, shows no track of that region as live past the last scan the station published (those
     it keeps are ``stale: true``, not silently frozen), and goes on merging the other regions to
     the end of the run. Whether a stale track remains depends on whether a neighbouring region
     took the person over meanwhile (at --speed 0 the stations run seconds of event time ahead of
@@ -167,10 +146,8 @@ def test_a_lost_region_is_logged_at_once_and_its_tracks_turn_stale_while_the_oth
             published[region] = max(published.get(region, -1.0), message.t)
             if not killed and isinstance(message, TrackSet) and message.t >= 40.0 and message.tracks:
                 # a region with a track now: its station dies
-                killed["region"], killed["at"] = region, time.monotonic()
+                killed["region"] = region
                 stations[region].proc.kill()
-                text = f"region {region}'s base station is gone"
-                threading.Thread(target=lambda: killed.setdefault("logged", wait_logged(merge, text, 10))).start()
 
     def on_tracks(sample) -> None:
         merged.append(decode(TrackSet, sample.payload.to_bytes()))
@@ -186,13 +163,13 @@ def test_a_lost_region_is_logged_at_once_and_its_tracks_turn_stale_while_the_oth
         # of the run; a fourth that starts late repairs the transitions it missed
         services("replay", str(field / "field"), "--speed", "0", "--net", net, "--wait-for",
                  "sensor_agent*4,merge,basestation*3", endpoint=zenoh_router)
-        assert done.wait(400), f"the merge never finished:\n{merge.log[-3000:]}"
+        assert done.wait(HUNG), f"the merge never finished:\n{merge.log[-3000:]}"
     finally:
         for subscriber in subscribers:
             subscriber.undeclare()
         session.close()
     region = killed["region"]
-    assert killed.get("logged", float("inf")) - killed["at"] < 2.0, merge.log[-3000:]
+    wait_logged(merge, f"region {region}'s base station is gone")
     after = [m for m in merged if m.t > published[region]]
     assert after and after[-1].t >= 85.0, "the merge stopped with the region"
     assert all(tr.stale for m in after for tr in m.tracks if tr.region == region)
@@ -225,7 +202,7 @@ def test_up_with_regions_restarts_a_killed_service_and_loses_nothing(field, tmp_
         up.wait_for(lambda line: line.startswith(f"up: {victim} killed by SIGKILL"), f"{victim}'s death logged")
         up.wait_for(lambda line: line.startswith(f"up: {victim} restarted"), f"{victim}'s restart logged")
     assert up.finish() == 0, up.log[-4000:]
-    bintrack("export", str(recording), "--what", "tracks", "--out", str(tmp_path / "live.csv"), cwd=tmp_path)
+    bintrack("export", str(recording), "--what", "tracks", "--out", str(tmp_path / "live.csv"), cwd=tmp_path, check=True)
     live, offline = read_tracks(tmp_path / "live.csv"), read_tracks(field / "regions.csv")
     assert [(r.t, r.track) for r in live] == [(r.t, r.track) for r in offline], up.log[-6000:]
     assert max(abs(a.x - b.x) + abs(a.y - b.y) for a, b in zip(live, offline)) < 1e-6
@@ -272,10 +249,9 @@ def test_up_secure_with_regions_gives_the_offline_rows_and_no_link_falls_to_defa
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (str(hook), os.environ.get("PYTHONPATH")) if p),
            "RUST_LOG": "info", "NO_COLOR": "1"}
     recording = tmp_path / "secure-regions.mcap"
-    up = subprocess.run([sys.executable, "-m", "bintrack.cli", "up", str(field / "field"), "--tracker", "mcmcda",
-                         "--regions", "4", "--secure", "--certs", str(certs), "--listen", f"tls/127.0.0.1:{free_port()}",
-                         "--speed", "0", "--exit-at-end", "--no-map", "--record", str(recording)],
-                        capture_output=True, text=True, cwd=REPO, env=env, timeout=300)
+    up = bintrack("up", str(field / "field"), "--tracker", "mcmcda", "--regions", "4", "--secure", "--certs", str(certs),
+                  "--listen", f"tls/127.0.0.1:{free_port()}", "--speed", "0", "--exit-at-end", "--no-map",
+                  "--record", str(recording), env=env)
     assert up.returncode == 0, up.stderr[-3000:]
     for i, region in enumerate(REGIONS):
         assert f"router {region} (" in up.stderr and f"listening on tls/127.0.0.{i + 2}:" in up.stderr
@@ -288,7 +264,7 @@ def test_up_secure_with_regions_gives_the_offline_rows_and_no_link_falls_to_defa
     warnings = [line for line in zenoh_log.splitlines() if " WARN " in line or " ERROR " in line]
     assert not [line for line in warnings if any(t in line for t in SECURITY_TROUBLE)], warnings
     exported = tmp_path / "live.csv"
-    bintrack("export", str(recording), "--what", "tracks", "--out", str(exported), cwd=tmp_path)
+    bintrack("export", str(recording), "--what", "tracks", "--out", str(exported), cwd=tmp_path, check=True)
     live, offline = read_tracks(exported), read_tracks(field / "regions.csv")
     assert len(offline) > 100
     assert [(r.t, r.track) for r in live] == [(r.t, r.track) for r in offline]

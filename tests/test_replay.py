@@ -8,12 +8,12 @@ import math
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 import zenoh
 
+from bintrack.keys import Keys
 from bintrack.live.session_options import client_config, router_config
 from bintrack.formats import Event, open_dataset, write_dataset
 from bintrack.messages import Clock, Deployment, DiskSensor, EndOfStream, RawSample, Region, decode, encode
@@ -21,7 +21,7 @@ from bintrack.live.recording import open_recording
 from bintrack.live.replay_schedule import (Consumers, End, NothingToReplay, Pacer, Publish, Tick, default_clock_period,
                                            schedule)
 
-from conftest import HUNG, REPO, free_port
+from support import DATASETS, HUNG, REPO, bintrack, free_port, wait_logged, wait_until
 
 def output(process) -> str:
     """What a service process has logged so far (also after it exited)."""
@@ -146,14 +146,6 @@ def client(endpoint: str) -> zenoh.Session:
     return zenoh.open(client_config([endpoint]))
 
 
-def wait_until(condition, timeout: float = HUNG, what: str = "condition") -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.05)
-
-
 def kinds(recording) -> list[str]:
     return [r.kind for r in recording.records()]
 
@@ -187,7 +179,7 @@ def test_dataset_into_recorder(tmp_path, zenoh_router, services):
 def test_replay_of_a_recording_gives_the_same_raw_records(tmp_path, zenoh_router, services):
     first, second = tmp_path / "first.mcap", tmp_path / "second.mcap"
     recorder = services("recorder", "--out", str(first), "--net", "darpa-grid", endpoint=zenoh_router)
-    replay = services("replay", str(REPO / "datasets" / "darpa-grid-1"), "--speed", "0", "--wait-for", "recorder",
+    replay = services("replay", str(DATASETS / "darpa-grid-1"), "--speed", "0", "--wait-for", "recorder",
                       endpoint=zenoh_router)
     assert replay.wait(HUNG) == 0, output(replay)
     assert recorder.wait(HUNG) == 0, output(recorder)
@@ -242,26 +234,29 @@ def test_loop_keeps_event_time_increasing(tmp_path, zenoh_router, services):
 def test_replay_waits_for_each_consumer_to_acknowledge(tmp_path, zenoh_router, services):
     data = tiny_dataset(tmp_path / "tiny")
     session = client(zenoh_router)
+    keys = Keys("tiny")
     ticks: list[float] = []
-    subscriber = session.declare_subscriber("bintrack/tiny/clock", lambda s: ticks.append(decode(Clock, s.payload.to_bytes()).t))
-    token = session.liveliness().declare_token("bintrack/tiny/alive/slow/1")
+    subscriber = session.declare_subscriber(keys.clock(), lambda s: ticks.append(decode(Clock, s.payload.to_bytes()).t))
+    token = session.liveliness().declare_token(keys.alive("slow", "1"))
     try:
         replay = services("replay", str(data), "--speed", "0", "--clock-period", "0.5", "--max-ahead", "1",
                           "--wait-for", "slow", endpoint=zenoh_router)
+        # replay says what it waits for (every 5 s of waiting): the acknowledgement of the tick
+        # before; until then it publishes no tick
         wait_until(lambda: ticks == [0.0], what="the first tick")
-        time.sleep(0.5)
+        wait_logged(replay, "replay: waiting for progress >= 0 s from slow/1")
         assert ticks == [0.0], "replay ran ahead of an unacknowledged tick"
-        session.put("bintrack/tiny/control/progress/slow/1", encode(Clock(t=0.0)))
+        session.put(keys.progress("slow", "1"), encode(Clock(t=0.0)))
         wait_until(lambda: ticks == [0.0, 0.5], what="the second tick")
-        time.sleep(0.3)
+        wait_logged(replay, "replay: waiting for progress >= 0.5 s from slow/1")
         assert ticks == [0.0, 0.5]
         token.undeclare()  # an awaited service that leaves: the clock holds until one is back
-        wait_until(lambda: "slow gone; holding event time" in output(replay), what="the hold")
+        wait_logged(replay, "slow gone; holding event time")
         assert ticks == [0.0, 0.5]
         # a new instance is not waited for on the ticks it never saw
-        token = session.liveliness().declare_token("bintrack/tiny/alive/slow/2")
+        token = session.liveliness().declare_token(keys.alive("slow", "2"))
         wait_until(lambda: ticks == [0.0, 0.5, 1.0], what="the tick after the hold")
-        session.put("bintrack/tiny/control/progress/slow/2", encode(Clock(t=10.0)))
+        session.put(keys.progress("slow", "2"), encode(Clock(t=10.0)))
         assert replay.wait(HUNG) == 0, output(replay)
         assert ticks == [0.0, 0.5, 1.0, 1.5, 2.0]
     finally:
@@ -275,7 +270,7 @@ def test_replay_before_the_router_retries_then_works(tmp_path, services):
     data = tiny_dataset(tmp_path / "tiny")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     replay = services("replay", str(data), "--speed", "0", "--wait-for", "recorder", "--wait", "30", endpoint=endpoint)
-    wait_until(lambda: "waiting for the Zenoh router" in output(replay), what="the retry message")
+    wait_logged(replay, "waiting for the Zenoh router")
     assert replay.proc.poll() is None
     router = zenoh.open(router_config([endpoint]))
     try:
@@ -302,7 +297,6 @@ def test_missing_service_times_out_with_a_clear_error(tmp_path, zenoh_router, se
 ])
 def test_bad_source_is_one_line_and_exit_2(tmp_path, make, message):
     source = make(tmp_path)
-    result = subprocess.run([sys.executable, "-m", "bintrack.cli", "replay", str(source), "--wait", "1"],
-                            capture_output=True, text=True, cwd=REPO, timeout=HUNG)
+    result = bintrack("replay", str(source), "--wait", "1")
     assert result.returncode == 2
     assert len(result.stderr.strip().splitlines()) == 1 and message in result.stderr, result.stderr

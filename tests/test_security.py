@@ -8,7 +8,6 @@ from __future__ import annotations
 import ipaddress
 import json
 import stat
-import subprocess
 import sys
 import threading
 from pathlib import Path
@@ -26,10 +25,10 @@ from bintrack.live.secure_profile import (PROFILE, awaiting_token_holders, clien
 from bintrack.live.stack import region_stack_commands
 from bintrack.messages import Clock, Track, TrackSet, encode
 
-from conftest import HUNG, REPO, free_port
+from support import DATASETS, HUNG, REPO, bintrack, free_port
 from test_mesh import RouterProcess
 
-DARPA3 = REPO / "datasets" / "darpa-grid-3"
+DARPA3 = DATASETS / "darpa-grid-3"
 NET = "bintrack/sec"
 
 
@@ -38,11 +37,6 @@ def certs(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("certs")
     assert cli.main(["certs", "--out", str(folder)]) == 0
     return folder
-
-
-def bintrack(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bintrack.cli", *args], capture_output=True, text=True,
-                          timeout=300, cwd=REPO)
 
 
 def test_certs_are_signed_by_the_ca_with_the_role_as_common_name_and_private_keys_0600(certs, tmp_path):
@@ -141,7 +135,7 @@ def test_each_role_may_do_only_what_its_policy_says(certs, secure_router):
         # the viewer may put nothing, but may ask
         for key in ("tracks", "clock", "control/eos", "sensor/n002/transition", "peer/n001/estimate"):
             viewer.put(f"{NET}/{key}", b"x")
-        assert [r.ok.payload.to_bytes() for r in viewer.get(f"{NET}/deployment", timeout=5) if r.ok] == [b"d"]
+        assert [r.ok.payload.to_bytes() for r in viewer.get(f"{NET}/deployment", timeout=HUNG) if r.ok] == [b"d"]
         replay.put(f"{NET}/clock", encode(Clock(t=1.0)))  # allowed: the replay's clock
         base.put(f"{NET}/tracks", tracks)  # allowed: the base station's tracks
         seen = observer.wait_for(f"{NET}/clock", f"{NET}/tracks")
@@ -352,7 +346,7 @@ def test_across_a_region_router_the_merge_and_a_region_base_station_may_do_only_
         entities.append(base.liveliness().declare_token(f"{NET}/region/r0c0/alive"))
         tokens.wait_for(f"{NET}/region/r0c0/alive")
         # a restarted merge asks the region for the scans it missed
-        replies = [r.ok.payload.to_bytes() for r in merge.get(f"{NET}/region/r0c0/tracks?after=0.5", timeout=5) if r.ok]
+        replies = [r.ok.payload.to_bytes() for r in merge.get(f"{NET}/region/r0c0/tracks?after=0.5", timeout=HUNG) if r.ok]
         assert replies == [scan]
         # the station's region keys cross the router link; the merge reads tracks and progress only
         base.put(f"{NET}/region/r0c0/fusion/reports", b"r")

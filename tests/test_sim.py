@@ -18,8 +18,8 @@ from bintrack.sim.faults import packet_faults, wrong_reports
 from bintrack.sim.sampling import periodic_events, presence_samples, sample_times
 from bintrack.sim.trajectories import circle, polyline, random_walk
 from bintrack.sim.transitions import beam_crossings, exact_transitions, inside_intervals
+from support import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 EXACT = 1e-9
 
 

@@ -18,6 +18,7 @@ from bintrack.trackers.multi.fusion import GridFusion
 from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.mcmcda import MCMCDAConfig, OnlineMCMCDA
 from bintrack.messages import Deployment, DiskSensor, PositionReport, PositionReports, Region, TrackSet
+from support import DATASETS
 from bintrack.trackers.multi.target_fit import Expectation
 
 from test_mcmcda import detecting_near, grid_deployment
@@ -194,7 +195,7 @@ def _tracks(folder: Path) -> list[tuple]:
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["darpa-grid-1", "darpa-grid-2", "darpa-grid-3"])
 def test_local_gain_updates_give_the_whole_grid_fit_exactly(name, monkeypatch):
-    folder = Path(__file__).resolve().parents[1] / "datasets" / name
+    folder = DATASETS / name
     local = _tracks(folder)
     monkeypatch.setattr(target_fit, "_Scan", _WholeGrid)
     whole = _tracks(folder)

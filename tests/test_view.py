@@ -26,9 +26,9 @@ from bintrack.live.recording import open_recording
 from bintrack.view.map_messages import deployment_item, message_item
 from bintrack.view.map_server import PageFeed
 from bintrack.view.map_state import MAX_SCANS, MapState
-from conftest import HUNG, REPO, free_port
+from support import DATASETS, HUNG, REPO, bintrack, free_port
 
-DARPA3 = REPO / "datasets" / "darpa-grid-3"
+DARPA3 = DATASETS / "darpa-grid-3"
 BROWSER_PACKAGE = "chromium-headless-shell"
 BROWSER_CANDIDATES = ("/usr/bin/chromium-headless-shell", "/usr/bin/chromium")
 LAUNCH_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -147,7 +147,7 @@ class Process:
     def log(self) -> str:
         return "\n".join(self.lines[-40:])
 
-    def stop(self, timeout: float = 30.0) -> int:
+    def stop(self, timeout: float = HUNG) -> int:
         """Ctrl-C (SIGINT): `bintrack up` then stops its services too; the view exits 0."""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGINT)
@@ -171,7 +171,7 @@ def live_run(tmp_path_factory):
 
 def finished(run: Process) -> Path:
     """The recording of ``run`` once `up --exit-at-end` has ended cleanly."""
-    code = run.proc.wait(timeout=180)
+    code = run.proc.wait(timeout=HUNG)
     assert code == 0, run.log
     return run.recording
 
@@ -182,9 +182,9 @@ def test_the_live_page_draws_the_deployment_the_tracks_and_the_detecting_sensors
     errors: list[str] = []
     page.on("pageerror", lambda exc: errors.append(str(exc)))
     page.goto(live_run.url)
-    page.wait_for_function("window.bintrack && bintrack.S.deployment !== null", timeout=30_000)
+    page.wait_for_function("window.bintrack && bintrack.S.deployment !== null", timeout=HUNG * 1000)
     sensors = page.evaluate("bintrack.sensorCount()")
-    page.wait_for_function("bintrack.trackLabels().length >= 2 && bintrack.litSensors().length >= 1", timeout=90_000)
+    page.wait_for_function("bintrack.trackLabels().length >= 2 && bintrack.litSensors().length >= 1", timeout=HUNG * 1000)
     labels = page.evaluate("bintrack.trackLabels()")
     lit = page.evaluate("bintrack.litSensors()")
     page.wait_for_function("bintrack.S.producing.has('tracks')")
@@ -196,9 +196,9 @@ def test_the_live_page_draws_the_deployment_the_tracks_and_the_detecting_sensors
     ranges_shown = page.evaluate("bintrack.rangesShown()")
     scale = page.evaluate("bintrack.scaleBar()")
     page.evaluate("bintrack.resetFrames()")
-    page.wait_for_function("bintrack.frameIntervals().length >= 120", timeout=60_000)
+    page.wait_for_function("bintrack.frameIntervals().length >= 120", timeout=HUNG * 1000)
     intervals = sorted(page.evaluate("bintrack.frameIntervals()"))
-    page.wait_for_function("document.querySelectorAll('path.truth').length >= 1", timeout=30_000)
+    page.wait_for_function("document.querySelectorAll('path.truth').length >= 1", timeout=HUNG * 1000)
     ARTEFACTS.mkdir(parents=True, exist_ok=True)
     shot = ARTEFACTS / "live-darpa-grid-3.png"
     page.screenshot(path=str(shot))
@@ -315,8 +315,7 @@ def test_view_on_a_taken_port_serves_on_a_free_one_and_says_so_once(tmp_path):
 def test_view_of_a_file_that_is_not_a_recording_fails_with_one_line(tmp_path):
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"not an mcap file")
-    result = subprocess.run([sys.executable, "-m", "bintrack.cli", "view", str(bad), "--map-port", str(free_port())],
-                            capture_output=True, text=True, cwd=REPO, timeout=60)
+    result = bintrack("view", str(bad), "--map-port", str(free_port()))
     assert result.returncode == 2
     assert result.stderr.strip().count("\n") == 0 and "not an MCAP recording" in result.stderr
 
@@ -342,16 +341,16 @@ def test_the_page_says_when_the_deployment_the_stack_the_bus_or_the_view_server_
         payload = encode(deployment.model_copy(update={"name": "gone"}))
         queryable = session.declare_queryable("bintrack/gone/deployment",
                                               lambda query: query.reply("bintrack/gone/deployment", payload))
-        page.wait_for_function(f"{banner}.textContent.includes('stack gone')", timeout=30_000)
+        page.wait_for_function(f"{banner}.textContent.includes('stack gone')", timeout=HUNG * 1000)
         assert page.evaluate("bintrack.sensorCount()") == 144
         queryable.undeclare()
         session.close()
         session = None
         router.close()
         router = None
-        page.wait_for_function(f"{banner}.textContent.includes('bus gone')", timeout=30_000)
+        page.wait_for_function(f"{banner}.textContent.includes('bus gone')", timeout=HUNG * 1000)
         assert view.stop() == 0, view.log
-        page.wait_for_function(f"{banner}.textContent.includes('view server gone')", timeout=30_000)
+        page.wait_for_function(f"{banner}.textContent.includes('view server gone')", timeout=HUNG * 1000)
         assert page.is_visible("#banner")
         page.close()
     finally:
@@ -381,7 +380,7 @@ def test_a_page_opened_mid_run_gets_the_deployment_and_the_latest_tracks_from_th
         url = view.wait_for("view: map on").split("map on ", 1)[1].strip()
         page = browser.new_page()
         page.goto(url)
-        page.wait_for_function("bintrack.trackLabels().length === 2", timeout=30_000)
+        page.wait_for_function("bintrack.trackLabels().length === 2", timeout=HUNG * 1000)
         labels = sorted(page.evaluate("bintrack.trackLabels()"), key=lambda label: label["track"])
         assert labels == [{"track": 4, "x": 10.0, "y": 20.0, "t": 12.5}, {"track": 9, "x": 30.0, "y": 5.0, "t": 12.5}]
         assert page.evaluate("bintrack.sensorCount()") == 144

@@ -8,7 +8,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 
 import pytest
 import zenoh
@@ -16,7 +15,7 @@ import zenoh
 from bintrack.live.session_options import client_config
 from bintrack.keys import Keys
 from bintrack.messages import LocalEstimate, Track, TrackSet, Transition, encode
-from conftest import HUNG, REPO, free_port
+from support import HUNG, REPO, bintrack, free_port, wait_until
 
 NET = "test-watch"
 KEYS = Keys(NET)
@@ -57,11 +56,12 @@ def bus(zenoh_router):
 
 def publish_when_matched(session: zenoh.Session, key: str, payload: bytes, printer: Printer) -> None:
     publisher = session.declare_publisher(key)
-    deadline = time.monotonic() + HUNG
-    while not publisher.matching_status.matching:
+
+    def subscribed() -> bool:
         assert printer.proc.poll() is None, printer.proc.communicate()[1]
-        assert time.monotonic() < deadline, "the printer never subscribed"
-        time.sleep(0.02)
+        return publisher.matching_status.matching
+
+    wait_until(subscribed, "the printer to subscribe")
     publisher.put(payload)
     publisher.undeclare()
 
@@ -109,8 +109,7 @@ def test_watch_prints_each_message_on_a_line(zenoh_router, bus, what, key, messa
 
 
 def test_watch_without_router_fails_with_one_line():
-    result = subprocess.run([sys.executable, "-m", "bintrack.cli", "watch", "-e", f"tcp/127.0.0.1:{free_port()}",
-                             "--wait", "0.2"], capture_output=True, text=True, timeout=HUNG, cwd=REPO)
+    result = bintrack("watch", "-e", f"tcp/127.0.0.1:{free_port()}", "--wait", "0.2")
     assert result.returncode == 1
     last = result.stderr.splitlines()[-1]
     assert last.startswith("bintrack watch: no Zenoh router reachable at tcp/127.0.0.1:") and "bintrack up" in last
@@ -147,7 +146,6 @@ def test_without_net_several_networks_alive_are_listed(zenoh_router, bus, progra
 
 
 def test_watch_without_net_and_no_network_alive_says_so(zenoh_router):
-    result = subprocess.run([sys.executable, "-m", "bintrack.cli", "watch", "-e", zenoh_router],
-                            capture_output=True, text=True, timeout=HUNG, cwd=REPO)
+    result = bintrack("watch", "-e", zenoh_router)
     assert result.returncode == 1
     assert "no bintrack network is alive on the bus" in result.stderr.strip().splitlines()[-1], result.stderr
