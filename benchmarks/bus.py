@@ -79,7 +79,7 @@ from bintrack.services import peer_agent as peer_agent_service
 from bintrack.sim.scenarios import simulate
 from bintrack.trackers import make_tracker
 
-REPO = Path(__file__).resolve().parents[1]
+from bench_support import REPO, free_port
 LOOPBACK = "127.0.0.1"
 
 RAW_MESSAGES = 200_000  # per run of the raw Zenoh figure
@@ -105,11 +105,6 @@ def say(text: str) -> None:
     """Progress on stderr."""
     print(f"[{time.monotonic() - _started:6.1f} s] {text}", file=sys.stderr, flush=True)
 
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind((LOOPBACK, 0))
-        return sock.getsockname()[1]
 
 
 def client_session(endpoint: str) -> zenoh.Session:

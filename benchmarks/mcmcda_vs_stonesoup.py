@@ -65,17 +65,13 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-DATASETS = ROOT / "datasets"
-DEFAULT_PLOT = ROOT / "docs" / "mcmcda_vs_stonesoup.png"
+from bench_support import DATASETS, DOCS, REPO, say
+
+DEFAULT_PLOT = DOCS / "mcmcda_vs_stonesoup.png"
 GOSPA_C, GOSPA_P = 10.0, 2.0  # m; α = 2 (bintrack.evaluation.metrics.gospa)
 SIM_PEOPLE, SIM_PFA = 10, 0.1
 EPOCH = datetime.datetime(2000, 1, 1)
 SETTING_BUDGET = 60.0  # s of tracking time for one Stone Soup setting on one dataset
-
-
-def say(text: str) -> None:
-    print(text, file=sys.stderr, flush=True)
 
 
 # --------------------------------------------------------------------------- data
@@ -481,7 +477,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="one Stone Soup setting per associator instead of the tuning grid")
     parser.add_argument("--mcmc-seeds", type=int, default=5,
                         help="also run ours with sampler seeds 0..N-1 and print the spread (default 5)")
-    parser.add_argument("--plot", type=Path, default=DEFAULT_PLOT, help=f"PNG (default {DEFAULT_PLOT.relative_to(ROOT)})")
+    parser.add_argument("--plot", type=Path, default=DEFAULT_PLOT, help=f"PNG (default {DEFAULT_PLOT.relative_to(REPO)})")
     args = parser.parse_args(argv)
 
     if importlib.util.find_spec("stonesoup") is None:

@@ -18,7 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-DEFAULT_PLOT = Path(__file__).resolve().parents[1] / "docs" / "multi_chains.png"
+from bench_support import DOCS
+
+DEFAULT_PLOT = DOCS / "multi_chains.png"
 
 
 def per_grid(record: dict) -> dict[str, list[dict]]:

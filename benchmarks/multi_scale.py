@@ -39,8 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_PLOT = ROOT / "docs" / "multi_scale.png"
+from bench_support import DOCS, say
+
+DEFAULT_PLOT = DOCS / "multi_scale.png"
 DEFAULT_CACHE = Path("/tmp/bintrack-multi-scale")
 SPEED = 1.25  # m/s, the mean walking speed of darpa-grid
 # (people, nodes per side)
@@ -48,10 +49,6 @@ GRIDS = ((10, 12), (30, 21), (100, 38), (100, 50))
 # The tracker reads each grid from WARM_UP + BEFORE_PEAK s before the moment the most people are
 # in the field to AFTER_PEAK s after it; times are taken after the warm-up.
 WARM_UP, BEFORE_PEAK, AFTER_PEAK = 15.0, 10.0, 10.0
-
-
-def say(text: str) -> None:
-    print(text, file=sys.stderr, flush=True)
 
 
 def entry_gap(people: int, side: int) -> float:

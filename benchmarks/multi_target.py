@@ -58,14 +58,14 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import mcmcda_vs_stonesoup as vs  # noqa: E402  (Stone Soup wiring and scoring shared with issue 6's benchmark)
+from bench_support import DOCS
+import mcmcda_vs_stonesoup as vs  # Stone Soup wiring and scoring shared with issue 6's benchmark (beside it)
 
 SUITE_SEED = 2026
 PEOPLE = (2, 3, 4, 5, 6, 7, 8, 10)
 HALVES = {"tuning": 1000, "held-out": 2000}  # simulation seeds start here
 DEFAULT_CACHE = Path("/tmp/bintrack-multi-target")
-DEFAULT_PLOT = Path(__file__).resolve().parents[1] / "docs" / "multi_target.png"
+DEFAULT_PLOT = DOCS / "multi_target.png"
 MIN_POINTS = (2, 3, 4)
 PEER_PROCESS_NOISE = (0.01, 0.05, 0.1, 0.2)  # m²/s³, besides ours, for the peer's CV model
 DELETERS = ("steps:2", "steps:3", "steps:5", "cov:20")

@@ -40,8 +40,9 @@ from bintrack.messages import PositionReports, TrackSet  # noqa: E402
 from bintrack.pipeline import run_tracker  # noqa: E402
 from bintrack.trackers.multi.tracker import MCMCDATracker  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
-DATASETS = [REPO / "datasets" / f"darpa-grid-{n}" for n in (1, 2, 3)]
+from bench_support import DATASETS as SHIPPED, REPO  # noqa: E402
+
+DATASETS = [SHIPPED / f"darpa-grid-{n}" for n in (1, 2, 3)]
 GOSPA_C = 10.0
 SETTLE = 1.0  # s after an entry or an exit before a scan counts as settled
 

@@ -16,7 +16,6 @@ import argparse
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -31,7 +30,7 @@ from bintrack.keys import Keys
 from bintrack.live.session_options import client_config, router_config
 from bintrack.sim.scenarios import simulate
 
-REPO = Path(__file__).resolve().parents[1]
+from bench_support import REPO, free_port
 SCENARIO = dict(seed=1, people=10, duration=600.0)
 RATE = 250  # samples/s
 TOP = 12
@@ -48,11 +47,6 @@ GROUPS = (
     ("reading the dataset", ("formats.py", "csv")),
 )
 
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def start(name: str, args: list[str], endpoint: str, work: Path, pyspy: str) -> subprocess.Popen:

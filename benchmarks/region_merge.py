@@ -22,15 +22,13 @@ import subprocess
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "shared"))
-
-from bintrack.evaluation.track_agreement import agreement  # noqa: E402
-from bintrack.formats import open_dataset  # noqa: E402
-from bintrack.pipeline import output_rows, run_regions, run_tracker  # noqa: E402
-from bintrack.regions import RegionMap  # noqa: E402
-from bintrack.trackers import TrackerOptions, make_tracker  # noqa: E402
-from bintrack.trackers.multi.region_merge import RegionMerge  # noqa: E402
+from bench_support import REPO
+from bintrack.evaluation.track_agreement import agreement
+from bintrack.formats import open_dataset
+from bintrack.pipeline import output_rows, run_regions, run_tracker
+from bintrack.regions import RegionMap
+from bintrack.trackers import TrackerOptions, make_tracker
+from bintrack.trackers.multi.region_merge import RegionMerge
 
 
 def seeds(text: str) -> list[int]:

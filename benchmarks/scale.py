@@ -34,15 +34,13 @@ import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "shared"))
-
-from bintrack.formats import open_dataset  # noqa: E402
-from bintrack.messages import PositionReports, TrackSet  # noqa: E402
-from bintrack.pipeline import TrackerDriver  # noqa: E402
-from bintrack.regions import RegionMap, grid_areas, grid_shape  # noqa: E402
-from bintrack.trackers import TrackerOptions, make_tracker  # noqa: E402
-from bintrack.transition_detector import TransitionDetector  # noqa: E402
+from bench_support import REPO
+from bintrack.formats import open_dataset
+from bintrack.messages import PositionReports, TrackSet
+from bintrack.pipeline import TrackerDriver
+from bintrack.regions import RegionMap, grid_areas, grid_shape
+from bintrack.trackers import TrackerOptions, make_tracker
+from bintrack.transition_detector import TransitionDetector
 
 
 def simulate(folder: Path, grid: int, people: int, seed: int) -> Path:

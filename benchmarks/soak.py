@@ -19,35 +19,17 @@ import argparse
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
 
+from bench_support import bintrack, free_port, rss_mib
+
 SERVICES = ("sensor_agent", "basestation", "recorder", "replay")
 BASELINE_T = 300.0  # s of event time: growth is measured from here on
 
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def bintrack(*args: str) -> None:
-    subprocess.run([sys.executable, "-m", "bintrack.cli", *args], check=True)
-
-
-def rss_mb(pid: int) -> float | None:
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    except OSError:
-        return None
-    return None
 
 
 def services_of(up_pid: int) -> dict[str, int]:
@@ -101,14 +83,14 @@ def main() -> int:
         while event_time[0] < args.duration and up.poll() is None:
             pids = services_of(up.pid)
             samples.append((time.monotonic() - started, event_time[0],
-                            {name: rss_mb(pid) for name, pid in pids.items()}))
+                            {name: rss_mib(pid) for name, pid in pids.items()}))
             print(f"soak: wall {samples[-1][0]:7.0f} s  event {event_time[0]:7.1f} s  " +
                   "  ".join(f"{k} {v:.1f} MB" for k, v in sorted(samples[-1][2].items()) if v), flush=True)
             deadline = time.monotonic() + args.interval
             while time.monotonic() < deadline and event_time[0] < args.duration and up.poll() is None:
                 time.sleep(0.5)
         pids = services_of(up.pid)
-        samples.append((time.monotonic() - started, event_time[0], {n: rss_mb(p) for n, p in pids.items()}))
+        samples.append((time.monotonic() - started, event_time[0], {n: rss_mib(p) for n, p in pids.items()}))
     finally:
         wall = time.monotonic() - started
         up.send_signal(signal.SIGTERM)

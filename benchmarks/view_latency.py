@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -29,15 +28,10 @@ import zenoh
 from bintrack.live.session_options import client_config, router_config
 from bintrack.messages import Deployment, Track, TrackSet, encode
 
-REPO = Path(__file__).resolve().parents[1]
+from bench_support import REPO, free_port
 LAUNCH_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def quantiles(values: list[float]) -> str:

@@ -21,16 +21,11 @@ import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from bench_support import REPO, free_port, rss_mib
 DATASET = REPO / "datasets" / "darpa-grid-3"
 LAUNCH_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def children(pid: int) -> dict[str, int]:
@@ -48,13 +43,6 @@ def children(pid: int) -> dict[str, int]:
         if ppid == pid and len(cmdline) > 2 and cmdline[1] == b"-m":
             found[cmdline[2].decode().rsplit(".", 1)[-1]] = int(entry)
     return found
-
-
-def rss_mib(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    raise RuntimeError(f"no VmRSS for {pid}")
 
 
 def slope(points: list[tuple[float, float]]) -> float:
@@ -118,7 +106,7 @@ def main() -> int:
             while time.monotonic() - start < args.minutes * 60:
                 now = time.monotonic() - start
                 for name in samples:
-                    samples[name].append((now, rss_mib(pids[name])))
+                    samples[name].append((now, rss_mib(pids[name], missing_ok=False)))
                 page.evaluate("bintrack.resetFrames()")
                 page.wait_for_function("bintrack.frameIntervals().length >= 60", timeout=60_000)
                 intervals = sorted(page.evaluate("bintrack.frameIntervals()"))
