@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 BINTRACK := $(VENV)/bin/bintrack
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test datasets clean bench bench-multi browser
+.PHONY: demo test test-fast datasets clean bench bench-multi browser
 
 PIP := $(PY) -m pip install -qq --disable-pip-version-check
 
@@ -25,6 +25,13 @@ demo: $(STAMP)
 # services and routers, so two files at once on 2 cores halve the time.
 test: $(STAMP) browser
 	$(PY) -m pytest -q -n auto --dist loadfile
+
+# The inner loop: what `make test` runs but the `slow` tests (long or statistical checks) and
+# the longest live files (faults: kills and restarts of whole stacks; regions on a router mesh;
+# the compose stacks; lossy links), which `make test` (and CI) still run. Same workers.
+FAST_SKIP := test_faults.py test_bus_faults.py test_regions_live.py test_compose_multi.py test_lossy_link.py
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -n auto --dist loadfile -m "not slow" $(addprefix --ignore=tests/,$(FAST_SKIP))
 
 # The map's browser tests drive Debian's chromium-headless-shell (Playwright never downloads a
 # browser). Installed here with apt-get when missing and apt-get is usable (root); elsewhere

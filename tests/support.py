@@ -228,14 +228,18 @@ class FakeBus:
     def tick(self, t: float, service: str, proc=None, sent: int | None = None) -> None:
         """Publish a clock tick and wait until ``service`` reports progress to it (so it has
         handled everything published before the tick). A played upstream reports having
-        handled everything up to ``t`` first (a played sensor agent: having sent ``sent``)."""
+        handled everything up to ``t`` first (a played sensor agent: having sent ``sent``).
+        ``proc``, the service's process: it must not end meanwhile."""
         for upstream in self.played:
             self.session.put(self.keys.progress(upstream, "test"), encode(Clock(t=t, sent=sent)),
                              attachment=control_attachment(upstream, "test"))
         self.put(self.keys.clock(), Clock(t=t))
-        wait_until(lambda: any(parse_key(key).service == service and message.t >= t
-                               for key, message in self.messages("progress")),
-                   f"progress {t} from {service}", logs=[proc] if proc else [])
+
+        def reported() -> bool:
+            assert proc is None or proc.proc.poll() is None, f"{proc.name} ended:\n{proc.log[-3000:]}"
+            return any(parse_key(key).service == service and message.t >= t for key, message in self.messages("progress"))
+
+        wait_until(reported, f"progress {t} from {service}", logs=[proc] if proc else [])
 
     def close(self) -> None:
         for entity in self.entities:

@@ -188,18 +188,19 @@ def test_recorder_waits_for_upstream_done_before_finalising(tmp_path, zenoh_rout
         bus.put(KEYS.eos(), EndOfStream(t=2.0))
         bus.put(KEYS.tracks(), TrackSet(t=2.0, tracker="mcmcda", tracks=[Track(track=1, x=1.0, y=2.0)]))
         # Not finalised: ticks after the end of stream are still recorded and acknowledged. The
-        # first is handled after the end of stream, which woke the recorder's main loop; the
-        # second comes after that wake-up had its turn (it was scheduled before the first
-        # tick's acknowledgement went out), and a finalised recorder would drop it unanswered.
-        bus.tick(2.5, "recorder")
-        bus.tick(3.0, "recorder")
+        # end of stream wakes the recorder's main loop (which would finalise) in three turns of
+        # its asyncio loop; each tick, sent once the one before is acknowledged, is handled
+        # after one more of those turns had its go, so the last of these five comes after the
+        # main loop's check, and a finalised recorder would leave it unanswered.
+        for t in (2.5, 3.0, 3.5, 4.0, 4.5):
+            bus.tick(t, "recorder", recorder)
         assert recorder.proc.poll() is None, "finalised before the base station was done"
         bus.put(KEYS.done("basestation", "b1"), EndOfStream(t=2.0))
         assert recorder.wait(HUNG) == 0, output(recorder)
     finally:
         token.undeclare()
     # in log-time (event-time) order: the done at t=2 before the ticks after it
-    assert [r.kind for r in open_recording(out).records()] == ["eos", "tracks", "done", "clock", "clock"]
+    assert [r.kind for r in open_recording(out).records()] == ["eos", "tracks", "done"] + ["clock"] * 5
 
 
 @pytest.mark.parametrize("how", ["SIGTERM", "SIGKILL"])
