@@ -26,10 +26,12 @@ demo: $(STAMP)
 test: $(STAMP) browser
 	$(PY) -m pytest -q -n auto --dist loadfile
 
-# The inner loop: what `make test` runs but the `slow` tests (long or statistical checks) and
-# the longest live files (faults: kills and restarts of whole stacks; regions on a router mesh;
-# the compose stacks; lossy links), which `make test` (and CI) still run. Same workers.
-FAST_SKIP := test_faults.py test_bus_faults.py test_regions_live.py test_compose_multi.py test_lossy_link.py
+# The inner loop (about a third of `make test`'s time): what `make test` runs but the `slow`
+# tests (long or statistical checks) and the longest live files, which `make test` (and CI)
+# still run: live equals offline for every tracker, kills and restarts of whole stacks, bad
+# input to each service, regions on a router mesh, the two-site compose stack, lossy links.
+FAST_SKIP := test_live.py test_faults.py test_bus_faults.py test_regions_live.py test_compose_multi.py \
+             test_lossy_link.py
 test-fast: $(STAMP)
 	$(PY) -m pytest -q -n auto --dist loadfile -m "not slow" $(addprefix --ignore=tests/,$(FAST_SKIP))
 
