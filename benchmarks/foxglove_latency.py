@@ -16,13 +16,11 @@ import argparse
 import asyncio
 import json
 import signal
-import socket
 import struct
 import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 import websockets
 import zenoh
@@ -30,15 +28,9 @@ import zenoh
 from bintrack.live.session_options import client_config
 from bintrack.messages import TrackSet, decode
 
-REPO = Path(__file__).resolve().parents[1]
+from bench_support import REPO, free_port
 GOAL_MS = 1000.0
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def ns(t: float) -> int:

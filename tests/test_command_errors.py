@@ -8,14 +8,12 @@ uncaught exception fails the test) and checks stderr holds exactly one line.
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from bintrack.cli import main as cli
-from conftest import REPO
+from support import REPO, bintrack
 
 DARPA3 = REPO / "datasets" / "darpa-grid-3"
 UNWRITABLE = "/proc/bintrack-nowhere"
@@ -134,8 +132,7 @@ def test_export_to_a_bad_path_is_one_line_and_status_2(out, files, recording, ca
 
 
 def test_bintrack_alone_lists_the_commands():
-    result = subprocess.run([sys.executable, "-m", "bintrack.cli"], capture_output=True, text=True, cwd=REPO,
-                            timeout=120)
+    result = bintrack()
     assert result.returncode == 0, result.stderr
     for command in cli.SUBCOMMANDS:
         assert f"\n    {command} " in result.stdout, command

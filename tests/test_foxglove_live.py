@@ -25,7 +25,7 @@ import zenoh
 
 from bintrack.live.session_options import client_config
 from bintrack.messages import TrackSet, decode
-from conftest import HUNG, REPO, free_port
+from support import HUNG, REPO, free_port
 
 DARPA3 = REPO / "datasets" / "darpa-grid-3"
 # Foxglove's WebSocket protocol: foxglove-sdk 0.30 names it foxglove.sdk.v1 (the same frames as

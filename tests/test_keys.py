@@ -1,7 +1,7 @@
 """Key expressions: every kind of ``bintrack.keys.KINDS`` is built by its ``Keys`` method and
 parsed back by ``parse_key``, enumerated from the table itself; the built strings are pinned
-(they are the bus format); the keys the README and docs/ name are kinds of the table, and a
-docs table of keys lists every kind."""
+(they are the bus format); the keys the README and docs/ name are kinds of the table, and the
+docs' table of keys (docs/design.md) lists every kind."""
 
 import inspect
 import itertools
@@ -157,7 +157,9 @@ def doc_keys(text: str) -> list[str]:
     strings (``?after=T``) dropped."""
     found = []
     for span in re.findall(r"`([^`\s]+)`", text):
-        span = span.split("?")[0]
+        span = span.split("?")[0].replace("…", "**")  # `region/<r>/…`: the region keys
+        if span.endswith("/"):  # a folder (`laser/`), not a key
+            continue
         if span.startswith("bintrack/"):
             suffix = span.split("/", 2)[2] if span.count("/") >= 2 else ""
         elif "/" in span and span.split("/")[0] in FIRST_CHUNKS:
@@ -196,19 +198,29 @@ def key_tables(text: str) -> list[list[list[str]]]:
     return tables
 
 
+def kind_of_cell(cell: str):
+    """The kind a table's key cell names (`` `bintrack/<net>/raw/<sensor>` `` or `` `raw/{sensor}` ``),
+    None if none or several."""
+    key = cell.strip("`")
+    key = key.split("/", 2)[2] if key.startswith("bintrack/") else key
+    chunks = ["*" if c.startswith("{") or c.startswith("<") else c for c in key.split("/")]
+    fitting = [kind for kind in KINDS if _matches(chunks, kind.chunks)]
+    return fitting[0] if len(fitting) == 1 else None
+
+
 def test_the_docs_key_tables_list_every_kind_as_the_table_has_it():
-    """A docs table of keys (first header cell ``key``, a row per kind, the key in backticks as
-    ``KINDS`` writes its suffix) lists every kind, once, and nothing else; a row that names a
-    builder (``Keys.kind(fields)``) or a kind (`` `kind` ``) names its own."""
-    by_suffix = {f"`{kind.suffix}`": kind for kind in KINDS}
+    """A docs table of keys (first header cell ``key``, a row per kind) lists every kind, once,
+    and nothing else; a row that names a builder (``Keys.kind(fields)``) or a kind
+    (`` `kind` ``) names its own."""
     tables = [(doc, rows) for doc in DOCS for rows in key_tables(doc.read_text())]
     assert tables, "no docs table of keys (first header cell `key`)"
     for doc, rows in tables:
         where = doc.relative_to(REPO)
-        firsts = [row[0] for row in rows]
-        assert sorted(firsts) == sorted(by_suffix), f"{where}: {sorted(set(firsts) ^ set(by_suffix))}"
-        for row in rows:
-            kind = by_suffix[row[0]]
+        kinds = [kind_of_cell(row[0]) for row in rows]
+        assert None not in kinds, f"{where}: {[row[0] for row, k in zip(rows, kinds) if k is None]} name no kind"
+        listed = sorted(k.kind for k in kinds)
+        assert listed == sorted(KIND), f"{where}: {sorted(set(listed) ^ set(KIND))} (once each)"
+        for row, kind in zip(rows, kinds):
             for name, args in re.findall(r"Keys\.(\w+)\(([^)]*)\)", " ".join(row[1:])):
                 assert (name, tuple(a.strip() for a in args.split(",") if a.strip())) == (kind.kind, kind.fields), \
                     f"{where}: {row[0]} is built by Keys.{kind.kind}{kind.fields}, not Keys.{name}({args})"
@@ -224,3 +236,6 @@ def test_the_docs_checks_catch_a_wrong_key_and_a_wrong_table():
     assert _expand("control/progress|done") == ["control/progress", "control/done"]
     table = "| key | what |\n| --- | --- |\n| `tracks` | x |\n\nafter"
     assert key_tables(table) == [[["`tracks`", "x"]]]
+    assert kind_of_cell("`bintrack/<net>/region/<r>/tracks`").kind == "region_tracks"
+    assert kind_of_cell("`raw/{sensor}`").kind == "raw"
+    assert kind_of_cell("`sensor/<s>/transitions`") is None

@@ -26,7 +26,6 @@ from bintrack.messages import Clock, EndOfStream, decode, encode
 from bintrack.pipeline import output_rows, run_tracker
 from bintrack.live.recording import open_recording
 from bintrack.cli.export_command import track_rows
-from bintrack.live.stack import stack_commands
 from bintrack.trackers import BASELINES, make_tracker
 from bintrack.transition_detector import TransitionDetector
 

@@ -26,7 +26,7 @@ from pathlib import Path
 import pytest
 
 from bintrack.keys import parse_key
-from conftest import HUNG, REPO
+from support import HUNG, REPO
 
 README = REPO / "README.md"
 DOCS = REPO / "docs"
