@@ -21,7 +21,7 @@ from bintrack.sim.engine import simulate_scenario
 from bintrack.sim.recorded_paths import recording_scenario
 from bintrack.formats import TruthRow
 
-from conftest import REPO
+from support import REPO
 
 REAL = REPO.parent / "shared" / "realdata" / "irtracking"
 needs_real = pytest.mark.skipif(not (REAL / "r1-easy.txt").exists(), reason="../shared/realdata/irtracking is missing")
