@@ -69,7 +69,7 @@ demo-mqtt: $(STAMP) mosquitto
 	@trap 'kill $$broker $$stack 2>/dev/null; wait' EXIT INT TERM; \
 	  $$(command -v mosquitto || echo /usr/sbin/mosquitto) -c $(DEMO_MQTT)/mosquitto.conf & broker=$$!; \
 	  $(BINTRACK) up --source mqtt://127.0.0.1:$(MQTT_PORT) --sensor-table $(DEMO_MQTT)/sensor-table.toml \
-	    --tracker mcmcda --view-port $(VIEW_PORT) $(UP_ARGS) 2> $(DEMO_MQTT)/up.log & stack=$$!; \
+	    --tracker mcmcda --map-port $(VIEW_PORT) $(UP_ARGS) 2> $(DEMO_MQTT)/up.log & stack=$$!; \
 	  tail -n +1 -f --pid=$$stack $(DEMO_MQTT)/up.log >&2 & \
 	  until grep -q "mqtt_bridge: subscribing" $(DEMO_MQTT)/up.log 2>/dev/null; do \
 	    kill -0 $$stack 2>/dev/null || exit 1; sleep 0.5; done; \
