@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 BINTRACK := $(VENV)/bin/bintrack
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-fast datasets clean bench bench-multi browser
+.PHONY: demo demo-mqtt test test-fast datasets clean bench bench-multi browser mosquitto
 
 PIP := $(PY) -m pip install -qq --disable-pip-version-check
 
@@ -23,7 +23,7 @@ demo: $(STAMP)
 
 # One worker per core (pytest-xdist), a test file per worker: the live tests mostly wait on
 # services and routers, so two files at once on 2 cores halve the time.
-test: $(STAMP) browser
+test: $(STAMP) browser mosquitto
 	$(PY) -m pytest -q -n auto --dist loadfile
 
 # The inner loop (about a third of `make test`'s time): what `make test` runs but the `slow`
@@ -48,6 +48,42 @@ browser:
 	    echo "make: $(BROWSER_PACKAGE) is not installed (apt-get install $(BROWSER_PACKAGE)); the browser tests will be skipped"; \
 	  fi; \
 	fi
+
+# The MQTT tests (tests/test_mqtt_live.py), `make demo-mqtt` and benchmarks/mqtt_bridge.py run
+# Debian's mosquitto broker on loopback; installed as the browser is, else those tests are skipped.
+MQTT_PACKAGE := mosquitto
+MOSQUITTO := $(shell command -v mosquitto 2>/dev/null || ls /usr/sbin/mosquitto 2>/dev/null)
+mosquitto:
+	@if [ -z "$(MOSQUITTO)" ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(MQTT_PACKAGE)) >/dev/null \
+	      || echo "make: could not install $(MQTT_PACKAGE); the MQTT tests will be skipped"; \
+	  else \
+	    echo "make: $(MQTT_PACKAGE) is not installed (apt-get install $(MQTT_PACKAGE)); the MQTT tests will be skipped"; \
+	  fi; \
+	fi
+
+# Sensors on MQTT (README, "Real sensors on MQTT"): a mosquitto on 127.0.0.1:$(MQTT_PORT), the
+# stack with the map reading it through the MQTT bridge, and darpa-grid-3 played in real time by
+# simulated Zigbee2MQTT occupancy sensors. Ctrl-C stops everything.
+MQTT_PORT ?= 1883
+DEMO_MQTT := out/demo-mqtt
+VIEW_PORT ?= 8080
+demo-mqtt: $(STAMP) mosquitto
+	@mkdir -p $(DEMO_MQTT) && rm -f $(DEMO_MQTT)/up.log
+	@printf 'listener $(MQTT_PORT) 127.0.0.1\nallow_anonymous true\npersistence true\npersistence_location %s/\nmax_queued_messages 0\nlog_type error\nlog_type warning\n%s' \
+	  "$$(pwd)/$(DEMO_MQTT)" "$$( [ "$$(id -u)" = 0 ] && echo 'user root' )" > $(DEMO_MQTT)/mosquitto.conf
+	@$(BINTRACK) simulate darpa-grid --people 3 --seed 3 --out $(DEMO_MQTT)/dataset \
+	  --sensor-table $(DEMO_MQTT)/sensor-table.toml --epoch 1970-01-01T00:00:00Z >/dev/null
+	@trap 'kill $$broker $$stack 2>/dev/null; wait' EXIT INT TERM; \
+	  $$(command -v mosquitto || echo /usr/sbin/mosquitto) -c $(DEMO_MQTT)/mosquitto.conf & broker=$$!; \
+	  $(BINTRACK) up --source mqtt://127.0.0.1:$(MQTT_PORT) --sensor-table $(DEMO_MQTT)/sensor-table.toml \
+	    --tracker mcmcda --map-port $(VIEW_PORT) $(UP_ARGS) 2> $(DEMO_MQTT)/up.log & stack=$$!; \
+	  tail -n +1 -f --pid=$$stack $(DEMO_MQTT)/up.log >&2 & \
+	  until grep -q "mqtt_bridge: subscribing" $(DEMO_MQTT)/up.log 2>/dev/null; do \
+	    kill -0 $$stack 2>/dev/null || exit 1; sleep 0.5; done; \
+	  $(BINTRACK) simulate darpa-grid --people 3 --seed 3 --out $(DEMO_MQTT)/dataset --publish mqtt://127.0.0.1:$(MQTT_PORT); \
+	  echo "make: the devices are done; the stack keeps running (Ctrl-C to stop)"; wait $$stack
 
 # Our MCMCDA against Stone Soup's GNN and JPDA (issue 6): needs the optional extra `bench`
 # (Stone Soup), which only this target installs. 3–6 min on 2 cores; `make bench BENCH_ARGS=--quick`

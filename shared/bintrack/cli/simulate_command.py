@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import time
 from pathlib import Path
 
-from bintrack.argtypes import output_folder
+from bintrack.argtypes import non_negative_float, output_folder
 from bintrack.errors import CommandError
 from bintrack.formats import write_dataset
 from bintrack.regions import grid_areas, grid_shape
@@ -61,6 +63,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="random seed (default 0)")
     for name, kind, metavar, text in OPTIONS:
         parser.add_argument(option_flag(name), dest=name, type=kind, metavar=metavar, help=text)
+    mqtt = parser.add_argument_group("playing the dataset as Zigbee2MQTT devices (README, Real sensors on MQTT)")
+    mqtt.add_argument("--publish", metavar="mqtt://HOST:PORT",
+                      help="after writing it, publish the dataset to this MQTT broker as Zigbee2MQTT occupancy sensors "
+                      "would (topic zigbee2mqtt/<id>, QoS 1), then a message on bintrack/end")
+    mqtt.add_argument("--sensor-table", metavar="FILE",
+                      help="write the sensor table (TOML) of these devices for the MQTT bridge")
+    mqtt.add_argument("--epoch", metavar="ISO8601",
+                      help="the time of event time 0 in the payloads and the table (default: now, whole seconds)")
+    mqtt.add_argument("--play-speed", type=non_negative_float, default=1.0, metavar="X",
+                      help="with --publish: X times real time, 0 as fast as the broker takes them (default: %(default)s)")
+    mqtt.add_argument("--mqtt-config", metavar="FILE", help="with --publish: the broker's login and TLS ([broker] table)")
     parser.add_argument("--regions", type=region_grid, metavar="CxR|N",
                         help="name regions in deployment.json: the field cut into C columns × R rows of rectangles "
                         "(N: the most square grid of N), each served by a base station of its own")
@@ -131,4 +144,39 @@ def run(args: argparse.Namespace) -> int:
     targets = len({row.target for row in result.truth})
     print(f"{out}: {len(result.events)} events from {len(result.deployment.sensors)} sensors over "
           f"{span:.1f} s, {targets} target{'s' if targets != 1 else ''}, {len(result.truth)} truth rows")
+    if args.sensor_table or args.publish:
+        _as_zigbee(args, out)
     return 0
+
+
+def _as_zigbee(args: argparse.Namespace, out: Path) -> None:
+    """Write the sensor table and/or publish the dataset written at ``out`` (its events as
+    ``bintrack track`` reads them) as Zigbee2MQTT devices would."""
+    from bintrack.formats import open_dataset
+    from bintrack.mqtt.broker_options import BrokerConfigError, broker_options
+    from bintrack.mqtt.sensor_table import parse_instant, table_text
+    from bintrack.mqtt.zigbee_playback import BASE_TOPIC, check_zigbee, iso_time, zigbee_messages
+
+    dataset = open_dataset(out)
+    try:
+        check_zigbee(dataset.deployment)
+        epoch_us = parse_instant(args.epoch) if args.epoch else int(time.time()) * 1_000_000
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
+    if args.sensor_table:
+        try:
+            Path(args.sensor_table).write_text(table_text(dataset.deployment, iso_time(epoch_us)))
+        except OSError as exc:
+            raise CommandError(f"cannot write {args.sensor_table}: {exc.strerror or exc}") from None
+        print(f"{args.sensor_table}: sensor table of {len(dataset.deployment.sensors)} Zigbee2MQTT occupancy sensors "
+              f"(topics {BASE_TOPIC}/<id>), event time 0 at {iso_time(epoch_us)}")
+    if args.publish:
+        from bintrack.mqtt.mqtt_client import publish_messages
+
+        try:
+            options = broker_options(args.publish, args.mqtt_config)
+            sent = publish_messages(options, zigbee_messages(dataset.events(), epoch_us), speed=args.play_speed,
+                                    client_id=f"bintrack-simulate-{os.getpid()}")
+        except (BrokerConfigError, ConnectionError) as exc:
+            raise CommandError(str(exc)) from None
+        print(f"{options.url}: published {sent} messages (QoS 1, acknowledged by the broker), the last on bintrack/end")

@@ -5,6 +5,8 @@ and every service as a subprocess with the commands docker-compose uses
 (:mod:`bintrack.live.stack`), the map (``bintrack view``) among them unless ``--no-view``.
 Shows live progress; stops everything on Ctrl-C, SIGTERM or SIGHUP
 or, with ``--exit-at-end``, once the replay's end has been processed by every service.
+With ``--source mqtt://HOST:PORT --sensor-table FILE`` the MQTT bridge takes replay's place:
+binary sensors on that broker are the source (README, "Real sensors on MQTT").
 
 Supervision: a service that dies is restarted with the same instance id after a backoff
 (0.5 s, doubling to 30 s; back to 0.5 s once it ran 30 s), with a log line each time; it
@@ -40,7 +42,7 @@ from bintrack.errors import CommandError
 from bintrack.formats import DEPLOYMENT_FILE, open_dataset, write_deployment
 from bintrack.keys import Keys, ParsedKey, parse_key
 from bintrack.messages import Clock, MessageError, decode
-from bintrack.live.stack import ServiceCommand, region_stack_commands, stack_commands
+from bintrack.live.stack import ServiceCommand, is_broker, region_stack_commands, stack_commands
 from bintrack.regions import grid_areas, grid_shape
 from bintrack.live.secure_profile import secure_up
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_arguments, tracker_options
@@ -61,6 +63,15 @@ STACK_ROLES = frozenset({"replay", "sensor_agent", "peer_agent", "basestation", 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("source", nargs="?", metavar="DIR", help="dataset folder or recording (.mcap) to replay")
+    mqtt = parser.add_argument_group("sensors on MQTT (README, Real sensors on MQTT)")
+    mqtt.add_argument("--source", dest="broker", metavar="mqtt://HOST:PORT",
+                      help="take the samples from binary sensors on this MQTT broker (the MQTT bridge), not a DIR")
+    mqtt.add_argument("--sensor-table", metavar="FILE", help="with --source: which topic is which sensor (TOML)")
+    mqtt.add_argument("--mqtt-config", metavar="FILE", help="with --source: the broker's login and TLS ([broker] table)")
+    mqtt.add_argument("--end-topic", metavar="TOPIC", help="with --source: a message on TOPIC ends the stream")
+    mqtt.add_argument("--clock", choices=("wall", "payload"), default="wall",
+                      help="with --source: event time follows the wall clock, or the latest payload time (a "
+                      "played-back stream) (default: %(default)s)")
     parser.add_argument("--tracker", choices=TRACKER_NAMES, default="equal-weight", help="tracker (default: %(default)s)")
     add_tracker_arguments(parser)
     parser.add_argument("--speed", type=float, default=1.0,
@@ -211,9 +222,13 @@ def _progress_line(now: Counter, before: Counter, dt: float, event_time: float |
     return "up: " + " | ".join(parts)
 
 
-def _source_net(source: str | None) -> str | None:
+def _source_net(source: str | None, sensor_table: str | None = None) -> str | None:
     if source is None:
         return None
+    if is_broker(source):
+        from bintrack.mqtt.sensor_table import load_table
+
+        return load_table(sensor_table).name
     path = Path(source)
     if path.suffix == ".mcap":
         from bintrack.live.recording import open_recording
@@ -286,7 +301,7 @@ def _region_source(args: argparse.Namespace) -> tuple[tempfile.TemporaryDirector
 
 
 def planned_stack(args: argparse.Namespace, net: str, view_port: int | None,
-                  state_dir: str | None = None) -> list[ServiceCommand]:
+                  state_dir: str | None = None, bridge_args: tuple[str, ...] = ()) -> list[ServiceCommand]:
     """The services ``up`` starts for ``args`` (one region), as :func:`stack_commands` builds
     them; docker-compose.yml runs the same with ``state_dir`` (a test holds the two together)."""
     options = replace(tracker_options(args), speed=None)  # --speed here is the replay's
@@ -294,7 +309,8 @@ def planned_stack(args: argparse.Namespace, net: str, view_port: int | None,
                           speed=args.speed, loop=args.loop, record=args.record, estimates=options.estimates,
                           tracker_args=tracker_arguments(options), view_port=view_port,
                           view_bind=getattr(args, "view_bind", DEFAULT_BIND), state_dir=state_dir,
-                          clock_period=args.clock_period, foxglove_port=getattr(args, "foxglove", None))
+                          clock_period=args.clock_period, foxglove_port=getattr(args, "foxglove", None),
+                          bridge_args=bridge_args)
 
 
 def _map_socket(bind: str, port: int) -> socket.socket | None:
@@ -310,7 +326,35 @@ def _map_socket(bind: str, port: int) -> socket.socket | None:
     return sock
 
 
+def _bridge_args(args: argparse.Namespace) -> tuple[str, ...]:
+    """For ``--source mqtt://…``: the MQTT bridge's options (checked here, so that a bad table
+    or config file is one line from ``up``, not a service's exit)."""
+    from bintrack.mqtt.broker_options import BrokerConfigError, broker_options
+    from bintrack.mqtt.sensor_table import TableError, load_table
+
+    if args.source is not None:
+        raise CommandError("give a DIR to replay or --source mqtt://HOST:PORT, not both")
+    if args.sensor_table is None:
+        raise CommandError("--source mqtt://… needs --sensor-table FILE (which topic is which sensor)")
+    if args.exit_at_end and args.end_topic is None:
+        raise CommandError("--exit-at-end with --source mqtt://… needs --end-topic TOPIC (what ends the stream)")
+    try:
+        broker_options(args.broker, args.mqtt_config)
+        load_table(args.sensor_table)
+    except (BrokerConfigError, TableError) as exc:
+        raise CommandError(str(exc)) from None
+    extra = ("--mqtt-config", str(Path(args.mqtt_config).resolve())) if args.mqtt_config else ()
+    end = ("--end-topic", args.end_topic) if args.end_topic else ()
+    return ("--sensor-table", str(Path(args.sensor_table).resolve()), *extra, *end, "--clock", args.clock)
+
+
 def run(args: argparse.Namespace) -> int:
+    bridge_args = ()
+    if getattr(args, "broker", None) is not None:
+        bridge_args = _bridge_args(args)
+        if getattr(args, "regions", None) is not None:
+            raise CommandError("--regions replays a dataset; it does not take --source mqtt://…")
+        args.source = args.broker
     if args.exit_at_end and args.source is None:
         raise CommandError("--exit-at-end needs a DIR to replay")
     if args.speed < 0:
@@ -319,8 +363,8 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"--record {args.record}: a recording's name must end in .mcap")
     if args.record is not None:
         output_file(args.record)
-    net = args.net or _source_net(args.source) or "default"
-    if args.source is not None and Path(args.source).suffix != ".mcap":
+    net = args.net or _source_net(args.source, getattr(args, "sensor_table", None)) or "default"
+    if args.source is not None and not is_broker(args.source) and Path(args.source).suffix != ".mcap":
         mismatch = sensor_mismatch(args.tracker, open_dataset(args.source).deployment)
         if mismatch is not None:
             print(f"up: warning: {mismatch}", file=sys.stderr)
@@ -348,7 +392,7 @@ def run(args: argparse.Namespace) -> int:
                 view_socket.close()
             raise CommandError(f"--regions: {exc}") from None
     else:
-        commands = planned_stack(args, net, view_port)
+        commands = planned_stack(args, net, view_port, bridge_args=bridge_args)
     if args.secure:
         try:
             commands, config = secure_up(commands, args.certs, args.listen)
@@ -417,7 +461,7 @@ def run(args: argparse.Namespace) -> int:
                 code = service.proc.poll()
                 if code is None:
                     continue
-                if code == 0 and service.name in ("replay", "recorder"):
+                if code == 0 and service.name in ("replay", "mqtt_bridge", "recorder"):
                     service.finished = True  # they end by themselves at the end of the stream
                 elif code == 2:
                     failed = f"{service.name} exited with status 2 (bad options or data)"

@@ -120,6 +120,14 @@ class MergeCheckpoint:
 
 
 @dataclass
+class BridgeCheckpoint:
+    """The MQTT bridge's: its core's state (:meth:`bintrack.mqtt.bridge_core.BridgeCore.snapshot`),
+    taken after a tick it published; its journal holds the messages taken since."""
+
+    core: dict
+
+
+@dataclass
 class RecorderCheckpoint:
     """Which split part the recorder was writing."""
 

@@ -2,7 +2,8 @@
 
 ``clock`` and ``control/eos`` drive every service: a clock tick moves the trackers' watermark,
 an end of stream flushes and ends the run. :class:`ControlGuard` admits them only from a
-sender that holds a replay's liveliness token (``alive/replay/<id>``), named in the sample's
+sender that holds a replay's liveliness token (``alive/replay/<id>``, or the MQTT bridge's
+``alive/mqtt_bridge/<id>``: the two sources of event time), named in the sample's
 Zenoh attachment (:func:`control_attachment`), and admits ``control/progress/<service>/<id>``
 and ``control/done/<service>/<id>`` only from a holder of ``alive/<service>/<id>`` (or a
 former one: last words may arrive after the token's withdrawal). A clock tick
@@ -30,6 +31,7 @@ from bintrack.messages import Clock, MessageError, decode_view
 
 MAX_STEPS = 4.0  # a tick may be this many announced steps past the last one admitted
 REPLAY = "replay"
+CLOCK_SOURCES = (REPLAY, "mqtt_bridge")  # the services that drive event time (a replay, or the MQTT bridge)
 
 
 def control_attachment(service: str, instance: str, step: float | None = None) -> bytes:
@@ -123,7 +125,7 @@ class ControlGuard:
         if sender is None:
             return self._reject(f"{key} (no sender named)",
                                 f"forged control: {kind} from an anonymous sender, not a replay's")
-        if not sender.startswith(f"{REPLAY}/") or not self.holds_token(sender):
+        if sender.split("/")[0] not in CLOCK_SOURCES or not self.holds_token(sender):
             return self._reject(f"{key} from {sender}",
                                 f"forged control: {kind} from {sender}, which holds no {self.keys.alive(REPLAY)} token")
         if kind == "eos":

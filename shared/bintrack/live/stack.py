@@ -34,7 +34,8 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
                    loop: bool = False, record: str | None = None, estimates: str | None = None,
                    tracker_args: tuple[str, ...] = (), view_port: int | None = None,
                    view_bind: str = "127.0.0.1", state_dir: str | None = None,
-                   clock_period: float | None = None, foxglove_port: int | None = None) -> list[ServiceCommand]:
+                   clock_period: float | None = None, foxglove_port: int | None = None,
+                   bridge_args: tuple[str, ...] = ()) -> list[ServiceCommand]:
     """The services in start order: the sensor agents, the peer agents if ``tracker`` runs on
     them, the base station, the recorder if ``record``, the view if ``view_port``, and last the replay of ``source`` (if
     any), which waits for all the others. ``estimates``: the peer tracker whose estimates
@@ -44,7 +45,9 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
     but the view keeps its checkpoint there under a fixed ``--id`` (its name), so that a
     restarted container resumes (compose; ``up`` gives its own); ``clock_period``: the replay's
     ``--clock-period`` (s of event time), None for its default; ``foxglove_port``: the Foxglove
-    bridge on ws://``view_bind``:``foxglove_port``, None for none."""
+    bridge on ws://``view_bind``:``foxglove_port``, None for none. A ``source`` that is an MQTT
+    broker (``mqtt://HOST:PORT``, ``mqtts://…``) is read by the MQTT bridge instead of replay,
+    with its further options ``bridge_args`` (the sensor table, …)."""
     bus = ("-e", endpoint, "--net", net)
     services = [ServiceCommand("sensor_agent", bus)]
     if runs_on_peers(tracker):
@@ -56,7 +59,11 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
         extra = (*tracker_args, *(("--estimates", estimates) if estimates is not None else ()))
         services.append(ServiceCommand("basestation", ("--tracker", tracker, *extra, *bus)))
     services += _recorder_and_view(record, loop and source is not None, view_port, view_bind, bus, foxglove_port)
-    if source is not None:
+    if source is not None and is_broker(source):
+        period = [] if clock_period is None else ["--clock-period", _number(clock_period)]
+        waits = ("--wait-for", ",".join(s.name for s in services))
+        services.append(ServiceCommand("mqtt_bridge", (source, *bridge_args, *period, *waits, *bus)))
+    elif source is not None:
         replay = [*_replay_pace(source, speed, loop, clock_period), "--wait-for", ",".join(s.name for s in services)]
         services.append(ServiceCommand("replay", (*replay, *bus)))
     if state_dir is not None:
@@ -66,6 +73,11 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
 
 
 STATELESS = ("view", "foxglove_bridge")  # nothing to resume: no checkpoint
+
+
+def is_broker(source: str) -> bool:
+    """Whether a stack's source is an MQTT broker URL (else a dataset or a recording)."""
+    return source.startswith(("mqtt://", "mqtts://"))
 
 
 def _replay_pace(source: str, speed: float, loop: bool, clock_period: float | None) -> list[str]:

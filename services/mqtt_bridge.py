@@ -1,0 +1,199 @@
+"""MQTT bridge: binary sensors on an MQTT broker as the stack's source (replay's role, live).
+
+``python -m bintrack.services.mqtt_bridge mqtt://HOST:PORT --sensor-table FILE [options]`` serves
+``deployment`` (the table's), subscribes with QoS 1 in a persistent session and wires
+:class:`bintrack.mqtt.bridge_core.BridgeCore`: raw samples on ``raw/<sensor>`` before each
+``clock`` tick, a tick once the consumers acknowledged the one ``--max-ahead`` before it (as
+replay), ``control/eos`` after a message on ``--end-topic``. With ``--state-dir`` it checkpoints
+the core and journals each message before paho acknowledges it: a restart loses nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import math
+import secrets
+import threading
+import time
+from pathlib import Path
+
+import zenoh
+
+from bintrack.errors import CommandError
+from bintrack.keys import parse_key
+from bintrack.live.checkpoint import BridgeCheckpoint
+from bintrack.live.service import Service, log, service_main
+from bintrack.live.control_guard import control_attachment
+from bintrack.messages import RESENT, Clock, EndOfStream, encode, encode_raw_sample
+from bintrack.mqtt.bridge_arguments import build_parser
+from bintrack.mqtt.bridge_core import BridgeCore, ConsumerGate, End, FaultLines, RecentSamples
+from bintrack.mqtt.broker_options import BrokerConfigError, broker_options
+from bintrack.mqtt.message_journal import MessageJournal, take_journal
+from bintrack.mqtt.mqtt_client import Subscription
+from bintrack.mqtt.sensor_table import TableError, load_table
+
+TICK_WALL = 0.05  # s of wall clock between looks at the clock
+CHECKPOINT_WALL = 0.0  # each tick: replayed ticks its consumers passed get no progress, and the gate would hang
+
+
+class MqttBridge(Service):
+    name = "mqtt_bridge"
+
+    def __init__(self, args: argparse.Namespace):
+        self.table = load_table(args.sensor_table)
+        self.broker = broker_options(args.broker, args.mqtt_config)
+        args.net = args.net or self.table.name
+        super().__init__(args)
+        self.core = BridgeCore(self.table, period=args.clock_period, lateness=args.lateness, clock=args.clock,
+                               max_rate=args.max_rate, end_topic=args.end_topic)
+        self.raw_keys = {s.id: self.keys.raw(s.id) for s in self.table.sensors}
+        self.gate = ConsumerGate(self.name, args.wait_for, args.max_ahead)
+        self.recent, self.lines = RecentSamples(), FaultLines()
+        self.lock = threading.Lock()  # the core and the journal, between paho's thread and the loop
+        self.journal, self.seq, self.resend_before = None, 0, None
+        self.changed, self.ended = asyncio.Event(), False
+
+    def listen_key(self) -> str:
+        return self.keys.progress()
+
+    async def setup(self) -> None:
+        checkpoints, saved = self.checkpoints, self.checkpoints.load(BridgeCheckpoint)
+        checkpoints.run_id = checkpoints.run_id or secrets.token_hex(8)  # as replay: the source names the run
+        if checkpoints.path is not None:
+            journal = Path(checkpoints.path).with_suffix(".journal")
+            if saved is not None:
+                self.core.restore(saved.core)
+                taken = take_journal(journal, self.core.journal_seq, self._take)
+                self.resend_before = self.core.latest  # what the killed instance may have published
+                log.info("mqtt_bridge: restarted at the tick t=%s s; took the %d messages its journal kept since; "
+                         "lost none the broker had acknowledged", self.core.last_tick, taken)
+            self.seq, self.journal = self.core.journal_seq, MessageJournal(journal, CHECKPOINT_WALL)
+        payload, run = encode(self.table.deployment()), checkpoints.run_id.encode()
+        self.serve(self.keys.deployment(), lambda q: q.reply(self.keys.deployment(), payload, attachment=run))
+        self.serve(self.keys.recent(), self._on_recent)
+        self.follow_presence(self._on_presence)
+        self.subscribe(self.keys.progress(), self._on_progress)
+
+    def _on_recent(self, query) -> None:
+        try:
+            payloads = self.recent.after(query.parameters.get("after"))
+        except ValueError:
+            return query.reply_err(b"after must be a number of seconds")
+        for payload in payloads:
+            query.reply(self.keys.recent(), payload)
+        query.reply(self.keys.recent(), encode(Clock(t=self.core.last_tick or 0.0)))
+
+    def _on_presence(self, parsed, present: bool) -> None:
+        if parsed.kind == "alive":
+            self.gate.on_alive(parsed.service, parsed.instance, present)
+            self.changed.set()
+
+    def _on_progress(self, sample) -> None:
+        if (message := self.read(Clock, sample)) is not None:
+            parsed = parse_key(str(sample.key_expr))
+            self.gate.on_progress(parsed.service, parsed.instance, message.t)
+            self.changed.set()
+
+    def _on_message(self, topic: str, payload: bytes, retained: bool) -> None:
+        """paho's thread: journal the message (before paho acknowledges it), then take it."""
+        received = time.time_ns() // 1000
+        with self.lock:
+            self.seq += 1
+            if self.journal is not None:
+                self.journal.append(self.seq, topic, payload, retained, received)
+            self._take(self.seq, topic, payload, retained, received)
+
+    def _take(self, seq: int, topic: str, payload: bytes, retained: bool, received: int) -> None:
+        outcome = self.core.receive(topic, payload, retained=retained, received_us=received, seq=seq)
+        if isinstance(outcome, End):  # the loop sees it within TICK_WALL
+            self.ended = True
+        elif (line := self.lines.describe(outcome, self.core)) is not None:
+            log.warning("mqtt_bridge: %s", line)
+
+    async def _until(self, condition, timeout: float | None = None) -> bool:
+        """Wait until ``condition()`` (True), a stop or ``timeout`` s (False); looks on each change."""
+        start = time.monotonic()
+        while not condition():
+            if self.stopping.is_set() or (timeout is not None and time.monotonic() - start > timeout):
+                return False
+            self.changed.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self.changed.wait(), TICK_WALL)
+        return True
+
+    async def main(self) -> None:
+        if not await self._until(lambda: not self.gate.missing(), self.args.ready_timeout):
+            if not self.stopping.is_set():
+                log.error("mqtt_bridge: no liveliness token from %s after %g s", ", ".join(self.gate.missing()),
+                          self.args.ready_timeout)
+                self.exit_status = 1
+            return
+        topics = self.table.subscriptions() + ([self.args.end_topic] if self.args.end_topic else [])
+        mqtt = Subscription(self.broker, f"bintrack-{self.keys.net}-{self.args.id or self.name}", topics,
+                            self._on_message, self.name)
+        try:
+            await asyncio.to_thread(mqtt.start, self.args.wait, self._stop_thread)
+        except ConnectionError as exc:
+            log.error("%s", exc)
+            self.exit_status = 1
+            return
+        control = control_attachment(self.name, self.instance, self.args.clock_period * self.args.max_ahead)
+        try:
+            while not self.stopping.is_set() and not self.ended:
+                await self._until(lambda: self.ended, TICK_WALL)
+                while not self.ended and self._tick(control):
+                    await asyncio.sleep(0)
+            if self.ended and not self.stopping.is_set():
+                await self._finish(control)
+        finally:
+            mqtt.stop()
+            log.info("mqtt_bridge: %s; connection lost %d times", self.core.summary(), mqtt.losses)
+
+    def _tick(self, control: bytes) -> bool:
+        """Publish the next due tick after its samples; False if none is due or may go yet."""
+        if not self.gate.ready():
+            return False
+        with self.lock:
+            due = self.core.next_tick(time.time_ns() // 1000)
+            if due is None:
+                return False
+            tick, samples = due
+            before = self.gate.sent[-1] if self.gate.sent else -math.inf
+            for s in samples:
+                key, payload = self.raw_keys[s.sensor], encode_raw_sample(s.t, s.sensor, s.value)
+                again = self.resend_before is not None and s.t <= self.resend_before
+                self._put(key, payload, RESENT if again else None)
+                self.recent.add(before, key, payload)
+            self._put(self.keys.clock(), encode(Clock(t=tick)), control)
+            self.gate.sent.append(tick)
+            self.recent.forget_before(self.gate.sent[0])
+            if self.journal is not None:
+                self.journal.checkpoint(lambda: self.checkpoints.save(BridgeCheckpoint(self.core.snapshot())))
+        return True
+
+    async def _finish(self, control: bytes) -> None:
+        """End of stream: the ticks up to the final one, then EOS once every consumer has it."""
+        with self.lock:
+            final, t_end = self.core.end()
+        while await self._until(self.gate.ready) and self._tick(control):
+            await asyncio.sleep(0)
+        if await self._until(lambda: self.gate.acknowledged(final)):
+            self._put(self.keys.eos(), encode(EndOfStream(t=t_end)), control)
+            log.info("mqtt_bridge: end of stream at t=%g s after %d samples", t_end, self.core.released)
+
+    def _put(self, key: str, payload: bytes, attachment: bytes | None) -> None:
+        self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK, attachment=attachment)
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        return service_main(MqttBridge, build_parser, argv)
+    except (TableError, BrokerConfigError, CommandError) as exc:
+        log.error("mqtt_bridge: %s", exc)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
