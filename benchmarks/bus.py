@@ -69,7 +69,8 @@ import zenoh
 from bintrack.live.session_options import client_config, router_config
 from bintrack.formats import open_dataset, write_dataset
 from bintrack.keys import Keys
-from bintrack.messages import LocalEstimate, RawSample, TrackSet, Transition, decode, encode
+from bintrack.bus_payloads import LocalEstimate, RawSample, TrackSet, Transition
+from bintrack.message_codec import decode, encode
 from bintrack.live.recording import open_recording
 from bintrack.live.replay_schedule import default_clock_period
 from bintrack.cli.export_command import track_rows

@@ -15,7 +15,8 @@ import timeit
 import msgpack
 import msgspec
 
-from bintrack.messages import VIEWS, Transition, decode, decode_view, encode
+from bintrack.bus_payloads import Transition
+from bintrack.message_codec import VIEWS, decode, decode_view, encode
 
 CALLS, REPEAT = 100_000, 5
 

@@ -26,7 +26,8 @@ import websockets
 import zenoh
 
 from bintrack.live.session_options import client_config
-from bintrack.messages import TrackSet, decode
+from bintrack.bus_payloads import TrackSet
+from bintrack.message_codec import decode
 
 from bench_support import REPO, free_port
 GOAL_MS = 1000.0

@@ -140,8 +140,9 @@ def run_ours(case: Case) -> None:
     config and seed, so it must give the same tracks)."""
     from bintrack.formats import open_dataset
     from bintrack.trackers.multi.fusion_config import FusionConfig
-    from bintrack.trackers.multi.mcmcda import MCMCDAConfig, OnlineMCMCDA
-    from bintrack.messages import PositionReports, TrackSet
+    from bintrack.trackers.multi.mcmcda import OnlineMCMCDA
+    from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
+    from bintrack.bus_payloads import PositionReports, TrackSet
     from bintrack.pipeline import run_tracker
     from bintrack.trackers import make_tracker
     from bintrack.trackers.multi.tracker import MCMCDATracker
@@ -184,8 +185,8 @@ def run_ours(case: Case) -> None:
 def ours_over_seeds(case: Case, seeds: range) -> list[Score]:
     """Our tracker's scores with other seeds of its sampler (everything else at the defaults)."""
     from bintrack.formats import open_dataset
-    from bintrack.trackers.multi.mcmcda import MCMCDAConfig
-    from bintrack.messages import TrackSet
+    from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
+    from bintrack.bus_payloads import TrackSet
     from bintrack.pipeline import run_tracker
     from bintrack.trackers.multi.tracker import MCMCDATracker
 

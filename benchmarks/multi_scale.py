@@ -102,7 +102,7 @@ class Run:
 
 def run(people: int, side: int, path: Path, profile: bool, chains: int | None = None) -> tuple[Run, str]:
     from bintrack.formats import TrackRow, open_dataset, read_truth
-    from bintrack.messages import PositionReports, TrackSet
+    from bintrack.bus_payloads import PositionReports, TrackSet
     from bintrack.evaluation.metrics import multi_target_scores, truth_paths
     from bintrack.pipeline import run_tracker
     from bintrack.trackers import make_tracker
@@ -117,7 +117,7 @@ def run(people: int, side: int, path: Path, profile: bool, chains: int | None = 
     data = Window(data, start)
     tracker = make_tracker("mcmcda", data.deployment)
     if chains is not None:
-        from bintrack.trackers.multi.mcmcda import MCMCDAConfig
+        from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
         from bintrack.trackers.multi.tracker import MCMCDATracker
 
         tracker = MCMCDATracker(data.deployment, config=MCMCDAConfig(chains=chains))

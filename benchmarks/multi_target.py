@@ -180,7 +180,7 @@ VARIANTS: dict[str, dict] = {
 
 def tracker_for(deployment, variant: str, seed: int):
     from bintrack.trackers.multi.fusion_config import FusionConfig
-    from bintrack.trackers.multi.mcmcda import MCMCDAConfig
+    from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
     from bintrack.trackers.multi.tracker import MCMCDATracker
 
     options = VARIANTS[variant]
@@ -195,7 +195,7 @@ def run_ours(args) -> tuple:
     name, path, seeds, variant = args
     from bintrack.formats import open_dataset
     from bintrack.trackers.multi.fusion_config import FusionConfig
-    from bintrack.messages import PositionReports, TrackSet
+    from bintrack.bus_payloads import PositionReports, TrackSet
     from bintrack.pipeline import run_tracker
     from bintrack.trackers.multi.tracker import MCMCDATracker
 

@@ -79,7 +79,7 @@ def enclosed_area(estimated: np.ndarray, real: np.ndarray) -> float:
 def one_run(job: tuple[str, str, int]) -> dict:
     """Simulate one run, track it with ``arc``, fit the trajectory; figures and the data to plot."""
     from bintrack.formats import open_dataset, write_dataset
-    from bintrack.messages import LocalEstimate
+    from bintrack.bus_payloads import LocalEstimate
     from bintrack.evaluation.metrics import area_between, polyline_length, truth_paths
     from bintrack.pipeline import run_tracker
     from bintrack.sim.scenarios import simulate

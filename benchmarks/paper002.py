@@ -95,7 +95,7 @@ def estimator_runs(job: tuple[int, list[int]]) -> tuple[int, dict[str, list[tupl
 
 def _transitions(ids: list[str], labels: np.ndarray, times: np.ndarray):
     """The transitions a sensor agent publishes for these samples (idle value −1)."""
-    from bintrack.messages import Transition
+    from bintrack.bus_payloads import Transition
 
     previous = np.full(labels.shape[1], -1)
     seq = np.zeros(labels.shape[1], dtype=int)

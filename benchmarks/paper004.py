@@ -35,8 +35,8 @@ import numpy as np  # noqa: E402
 from bintrack.formats import TrackRow, open_dataset  # noqa: E402
 from bintrack.evaluation.metrics import multi_target_scores, truth_paths  # noqa: E402
 from bintrack.trackers.multi.fusion_config import FusionConfig  # noqa: E402
-from bintrack.trackers.multi.mcmcda import MCMCDAConfig  # noqa: E402
-from bintrack.messages import PositionReports, TrackSet  # noqa: E402
+from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig  # noqa: E402
+from bintrack.bus_payloads import PositionReports, TrackSet  # noqa: E402
 from bintrack.pipeline import run_tracker  # noqa: E402
 from bintrack.trackers.multi.tracker import MCMCDATracker  # noqa: E402
 

@@ -26,7 +26,8 @@ import zenoh
 from bintrack.live.session_options import router_config
 from bintrack.formats import open_dataset, write_dataset
 from bintrack.keys import Keys
-from bintrack.messages import LocalEstimate, decode
+from bintrack.bus_payloads import LocalEstimate
+from bintrack.message_codec import decode
 from bintrack.pipeline import run_tracker
 from bintrack.sim.scenarios import simulate
 from bintrack.live.stack import stack_commands

@@ -32,7 +32,7 @@ from bintrack.calibration.sample_series import sample_series  # noqa: E402
 from bintrack.formats import Event, TruthRow  # noqa: E402
 from bintrack.importers.binary_matrix import matrix_events, read_sample_matrix, read_sensor_table  # noqa: E402
 from bintrack.importers.cvml import read_cvml  # noqa: E402
-from bintrack.messages import Deployment, DiskSensor, Region  # noqa: E402
+from bintrack.deployment_model import Deployment, DiskSensor, Region  # noqa: E402
 from bintrack.sim.engine import simulate_scenario  # noqa: E402
 from bintrack.sim.recorded_paths import recording_scenario  # noqa: E402
 

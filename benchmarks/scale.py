@@ -36,7 +36,7 @@ from pathlib import Path
 
 from bench_support import REPO
 from bintrack.formats import open_dataset
-from bintrack.messages import PositionReports, TrackSet
+from bintrack.bus_payloads import PositionReports, TrackSet
 from bintrack.pipeline import TrackerDriver
 from bintrack.regions import RegionMap, grid_areas, grid_shape
 from bintrack.trackers import TrackerOptions, make_tracker

@@ -26,7 +26,9 @@ from pathlib import Path
 import zenoh
 
 from bintrack.live.session_options import client_config, router_config
-from bintrack.messages import Deployment, Track, TrackSet, encode
+from bintrack.bus_payloads import Track, TrackSet
+from bintrack.deployment_model import Deployment
+from bintrack.message_codec import encode
 
 from bench_support import REPO, free_port
 LAUNCH_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",

@@ -37,7 +37,8 @@ from bintrack.live.service import log, service_main
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.live.track_history import TrackHistory
 from bintrack.live.transition_intake import TransitionConsumer
-from bintrack.messages import Clock, LineObjectEstimate, LocalEstimate, Message, PositionReports, TrackSet, VelocityEstimate
+from bintrack.bus_payloads import Clock, LineObjectEstimate, LocalEstimate, PositionReports, TrackSet, VelocityEstimate
+from bintrack.message_base import Message
 from bintrack.regions import RegionMap
 from bintrack.services.estimate_relay import EstimateRelay
 from bintrack.trackers import TRACKER_NAMES, check_options, make_tracker, runs_on_peers

@@ -19,7 +19,7 @@ from bintrack.errors import CommandError
 from bintrack.live.estimate_check import estimate_problem
 from bintrack.live.track_history import TrackHistory
 from bintrack.live.transition_intake import TransitionConsumer
-from bintrack.messages import Clock, LocalEstimate, Track, TrackSet
+from bintrack.bus_payloads import Clock, LocalEstimate, Track, TrackSet
 from bintrack.ordering import ReorderBuffer
 from bintrack.pipeline import SINGLE_TARGET_TRACK
 

@@ -30,7 +30,8 @@ from bintrack.live.checkpoint import MergeCheckpoint
 from bintrack.live.service import Service, log, service_main
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.live.track_history import TrackHistory
-from bintrack.messages import Clock, MessageError, TrackSet, decode
+from bintrack.bus_payloads import Clock, TrackSet
+from bintrack.message_codec import MessageError, decode
 from bintrack.regions import RegionMap
 from bintrack.trackers.multi.region_merge import MergeConfig, RegionMerge
 

@@ -26,7 +26,8 @@ from bintrack.keys import parse_key
 from bintrack.live.checkpoint import BridgeCheckpoint
 from bintrack.live.service import Service, log, service_main
 from bintrack.live.control_guard import control_attachment
-from bintrack.messages import RESENT, Clock, EndOfStream, encode, encode_raw_sample
+from bintrack.bus_payloads import Clock, EndOfStream
+from bintrack.message_codec import RESENT, encode, encode_raw_sample
 from bintrack.mqtt.bridge_arguments import build_parser
 from bintrack.mqtt.bridge_core import BridgeCore, ConsumerGate, End, FaultLines, RecentSamples
 from bintrack.mqtt.broker_options import BrokerConfigError, broker_options

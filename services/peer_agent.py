@@ -15,7 +15,7 @@ import sys
 from bintrack.argtypes import non_negative_float, positive_float
 from bintrack.live.service import service_main
 from bintrack.live.session_options import add_bus_arguments
-from bintrack.messages import LocalEstimate
+from bintrack.bus_payloads import LocalEstimate
 from bintrack.errors import CommandError
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_options
 from bintrack.trackers import PEER_TRACKERS, make_tracker

@@ -33,7 +33,8 @@ from bintrack.live.replay_schedule import TICK_FASTEST, TICK_WALL, default_clock
 from bintrack.live.replay_source import ReplaySource
 from bintrack.live.service import Service, service_main
 from bintrack.live.session_options import add_bus_arguments
-from bintrack.messages import Clock, encode
+from bintrack.bus_payloads import Clock
+from bintrack.message_codec import encode
 
 log = logging.getLogger("bintrack")
 

@@ -23,7 +23,8 @@ from bintrack.live.checkpoint import SensorAgentCheckpoint
 from bintrack.live.sensor_hosting import HISTORY_SPAN, HostedSensors
 from bintrack.live.service import Service, log, service_main
 from bintrack.live.session_options import add_bus_arguments
-from bintrack.messages import Clock, EndOfStream, MessageError, RawSample, decode_view, encode, is_resent
+from bintrack.bus_payloads import Clock, EndOfStream, RawSample
+from bintrack.message_codec import MessageError, decode_view, encode, is_resent
 from bintrack.regions import RegionMap
 from bintrack.transition_detector import TransitionDetector
 

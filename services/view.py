@@ -30,7 +30,8 @@ from bintrack.live.service import Service, service_main
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.errors import CommandError
 from bintrack.keys import parse_key
-from bintrack.messages import MessageError, TrackSet, decode
+from bintrack.bus_payloads import TrackSet
+from bintrack.message_codec import MessageError, decode
 from bintrack.live.recording import KIND_TYPES
 from bintrack.view.map_messages import DRAWN_KINDS, message_item
 from bintrack.view.map_server import (DEFAULT_BIND, DEFAULT_PORT, MapHub, listening_socket, make_app, page_url,

@@ -31,7 +31,8 @@ from bintrack.keys import Keys, parse_key
 from bintrack.live.session_options import client_config
 from bintrack.live.control_guard import control_attachment
 from bintrack.live.recording import KIND_TYPES
-from bintrack.messages import Clock, decode, encode
+from bintrack.bus_payloads import Clock
+from bintrack.message_codec import decode, encode
 
 REPO = Path(__file__).resolve().parents[1]
 DATASETS = REPO / "datasets"

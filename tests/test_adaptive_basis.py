@@ -20,9 +20,10 @@ from bintrack.trackers.laser.adaptive_basis import (
     parameter_error,
     passage_scene,
 )
-from bintrack.errors import CommandError
+from bintrack.errors import TrackerConfigError
 from bintrack.formats import ObjectRow, open_dataset
-from bintrack.messages import Calibration, Deployment, DiskSensor, LineObjectEstimate, LineSensor, Region
+from bintrack.bus_payloads import LineObjectEstimate
+from bintrack.deployment_model import Calibration, Deployment, DiskSensor, LineSensor, Region
 from bintrack.evaluation.metrics import entry_exit_errors, truth_paths
 from bintrack.pipeline import TrackerDriver, output_objects, run_tracker
 from bintrack.sim.scenarios import build_scenario
@@ -358,16 +359,16 @@ def test_tracker_uses_known_positions_off_one_line(testbed):
 
 def test_tracker_constructor_errors():
     region = Region(xmin=0, ymin=0, xmax=16, ymax=8)
-    with pytest.raises(CommandError, match="needs line sensors"):
+    with pytest.raises(TrackerConfigError, match="needs line sensors"):
         AdaptiveBasisTracker(Deployment(name="d", units="m", region=region,
                                         sensors=[DiskSensor(id="n1", x=1, y=1, range=2)]))
-    with pytest.raises(CommandError, match="at least 6 line sensors"):
+    with pytest.raises(TrackerConfigError, match="at least 6 line sensors"):
         AdaptiveBasisTracker(_deployment([LineSensor(id=f"L{k}") for k in range(5)]))
-    with pytest.raises(CommandError, match="lie on one line"):
+    with pytest.raises(TrackerConfigError, match="lie on one line"):
         AdaptiveBasisTracker(_deployment([LineSensor(id=f"L{k}", x=k, y=0) for k in range(6)]))
-    with pytest.raises(CommandError, match="real-world coordinates"):
+    with pytest.raises(TrackerConfigError, match="real-world coordinates"):
         AdaptiveBasisTracker(_deployment([LineSensor(id=f"L{k}") for k in range(6)], Calibration(passes=[])))
-    with pytest.raises(CommandError, match="gap"):
+    with pytest.raises(TrackerConfigError, match="gap"):
         AdaptiveBasisTracker(open_dataset(TESTBED).deployment, gap=0)
 
 
@@ -467,7 +468,7 @@ def test_object_covariance_is_the_inverse_normal_matrix_block():
 def test_phase2_option_errors():
     with pytest.raises(ValueError, match="phase2"):
         AdaptiveBasis(6, phase2="newton")
-    with pytest.raises(CommandError, match="phase 2"):
+    with pytest.raises(TrackerConfigError, match="phase 2"):
         AdaptiveBasisTracker(open_dataset(TESTBED).deployment, phase2="newton")
 
 
@@ -509,7 +510,7 @@ def test_estimates_carry_entry_and_exit_standard_deviations(testbed):
     sds = np.array([(o.entry_sd, o.exit_sd) for o in out if o.object >= 5], dtype=float)
     assert np.all(np.isfinite(sds)) and np.all(sds > 0) and np.all(sds < 2.0)
     # an old recording's message, without them, still decodes
-    from bintrack.messages import decode, encode
+    from bintrack.message_codec import decode, encode
     old = LineObjectEstimate(object=1, t_first=0, t_last=1, entry_x=0, entry_y=3, exit_x=16, exit_y=4, vx=1, vy=.1)
     payload = msgpack_without(encode(old), ("entry_sd", "exit_sd"))
     assert decode(LineObjectEstimate, payload) == old and old.entry_sd is None

@@ -9,7 +9,8 @@ import pytest
 from bintrack.evaluation.eval_report import evaluate
 from bintrack.formats import open_dataset, write_dataset, write_tracks
 from bintrack.geometry import TWO_PI, circle_circle_angles
-from bintrack.messages import Deployment, LocalEstimate, Transition
+from bintrack.bus_payloads import LocalEstimate, Transition
+from bintrack.deployment_model import Deployment
 from bintrack.pipeline import output_rows, run_tracker
 from bintrack.sim.scenarios import simulate
 from bintrack.trackers import TRACKER_NAMES, make_tracker

@@ -31,23 +31,9 @@ from bintrack.live.session_options import router_config
 from bintrack.live.control_guard import control_attachment
 from bintrack.formats import open_dataset
 from bintrack.keys import Keys, parse_key
-from bintrack.messages import (
-    Clock,
-    Deployment,
-    DiskSensor,
-    EndOfStream,
-    LocalEstimate,
-    RawSample,
-    Region,
-    SensorState,
-    TrackSet,
-    RESENT,
-    Transition,
-    decode,
-    encode,
-    encode_raw_sample,
-    is_resent,
-)
+from bintrack.bus_payloads import Clock, EndOfStream, LocalEstimate, RawSample, SensorState, TrackSet, Transition
+from bintrack.deployment_model import Deployment, DiskSensor, Region
+from bintrack.message_codec import RESENT, decode, encode, encode_raw_sample, is_resent
 from bintrack.live.recording import RecordingWriter, open_recording
 
 from conftest import write_foreign_dataset

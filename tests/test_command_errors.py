@@ -109,7 +109,9 @@ def test_a_bad_path_is_one_line_and_status_2(case, files, capsys):
 def recording(files) -> Path:
     """A tiny finished recording (for export's output paths)."""
     from bintrack.live.recording import RecordingWriter
-    from bintrack.messages import Clock, Deployment, encode
+    from bintrack.bus_payloads import Clock
+    from bintrack.deployment_model import Deployment
+    from bintrack.message_codec import encode
 
     path = files["TMP"] / "tiny.mcap"
     deployment = Deployment.model_validate_json((DARPA3 / "deployment.json").read_text())

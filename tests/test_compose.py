@@ -31,7 +31,7 @@ import zenoh
 
 from bintrack.client import BintrackClient
 from bintrack.keys import Keys
-from bintrack.messages import TrackSet
+from bintrack.bus_payloads import TrackSet
 from support import HUNG, REPO, free_port
 
 COMPOSE = yaml.safe_load((REPO / "docker-compose.yml").read_text())

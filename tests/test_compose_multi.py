@@ -15,7 +15,8 @@ import zenoh
 
 from bintrack.keys import Keys
 from bintrack.live.session_options import client_config
-from bintrack.messages import TrackSet, decode
+from bintrack.bus_payloads import TrackSet
+from bintrack.message_codec import decode
 from support import DATASETS, HUNG, REPO, free_port
 from test_compose import MODULE_PREFIX, container_argv, dependency_order, local_args, option_values, uses_our_build
 from test_mesh import RouterProcess

@@ -15,7 +15,9 @@ from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
 from bintrack.keys import Keys
 from bintrack.live.session_options import client_config, open_session
 from bintrack.live.control_guard import control_attachment
-from bintrack.messages import Clock, Deployment, EndOfStream, decode, encode
+from bintrack.bus_payloads import Clock, EndOfStream
+from bintrack.deployment_model import Deployment
+from bintrack.message_codec import decode, encode
 
 from support import DATASETS, HUNG, REPO, bintrack, free_port, wait_until
 

@@ -10,7 +10,7 @@ from bintrack.cli import main as cli
 from bintrack.errors import CommandError
 from bintrack.evaluation.eval_report import evaluate
 from bintrack.formats import Event, ObjectRow, TrackRow, TruthRow, write_dataset, write_objects, write_tracks
-from bintrack.messages import Deployment
+from bintrack.deployment_model import Deployment
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -24,7 +24,8 @@ from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
 from bintrack.live.session_options import client_config
 from bintrack.live.control_guard import control_attachment
 from bintrack.keys import Keys
-from bintrack.messages import Clock, RawSample, decode, encode
+from bintrack.bus_payloads import Clock, RawSample
+from bintrack.message_codec import decode, encode
 from bintrack.live.recording import open_recording
 from bintrack.live.stack import stack_commands
 

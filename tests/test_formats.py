@@ -20,7 +20,7 @@ from bintrack.formats import (
     write_objects,
     write_tracks,
 )
-from bintrack.messages import Deployment
+from bintrack.deployment_model import Deployment
 
 DEPLOYMENT = {
     "format": "bintrack.deployment/1",

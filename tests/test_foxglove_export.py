@@ -9,8 +9,8 @@ import jsonschema
 from mcap.reader import make_reader
 
 from bintrack.formats import read_deployment
-from bintrack.messages import (Clock, PositionReport, PositionReports, Track, TrackSet, Transition, TruthSample,
-                               encode)
+from bintrack.bus_payloads import Clock, PositionReport, PositionReports, Track, TrackSet, Transition, TruthSample
+from bintrack.message_codec import encode
 from bintrack.live.recording import RecordingWriter, open_recording
 from support import DATASETS, bintrack
 

@@ -24,7 +24,8 @@ import pytest
 import zenoh
 
 from bintrack.live.session_options import client_config
-from bintrack.messages import TrackSet, decode
+from bintrack.bus_payloads import TrackSet
+from bintrack.message_codec import decode
 from support import HUNG, REPO, free_port
 
 DARPA3 = REPO / "datasets" / "darpa-grid-3"

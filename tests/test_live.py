@@ -22,7 +22,8 @@ from bintrack.formats import (
     write_dataset,
 )
 from bintrack.keys import Keys
-from bintrack.messages import Clock, EndOfStream, decode, encode
+from bintrack.bus_payloads import Clock, EndOfStream
+from bintrack.message_codec import decode, encode
 from bintrack.pipeline import output_rows, run_tracker
 from bintrack.live.recording import open_recording
 from bintrack.cli.export_command import track_rows

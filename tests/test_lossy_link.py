@@ -16,7 +16,8 @@ import pytest
 
 from bintrack.cli.export_command import track_rows
 from bintrack.formats import open_dataset
-from bintrack.messages import Transition, decode
+from bintrack.bus_payloads import Transition
+from bintrack.message_codec import decode
 from bintrack.pipeline import output_rows, run_tracker
 from bintrack.live.recording import open_recording
 from bintrack.trackers import make_tracker

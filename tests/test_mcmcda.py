@@ -10,12 +10,14 @@ import pickle
 import numpy as np
 import pytest
 
-from bintrack.errors import CommandError
+from bintrack.errors import TrackerConfigError
 from bintrack.formats import Dataset, TrackRow, open_dataset
 from bintrack.trackers.multi.fusion import GridFusion, ScanFusion
 from bintrack.trackers.multi.fusion_config import FusionConfig
-from bintrack.trackers.multi.mcmcda import MCMCDAConfig, OnlineMCMCDA
-from bintrack.messages import Deployment, DiskSensor, MotionSensor, PositionReport, PositionReports, Region, Transition, TrackSet
+from bintrack.trackers.multi.mcmcda import OnlineMCMCDA
+from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
+from bintrack.bus_payloads import PositionReport, PositionReports, TrackSet, Transition
+from bintrack.deployment_model import Deployment, DiskSensor, MotionSensor, Region
 from bintrack.evaluation.metrics import multi_target_scores, truth_paths
 from bintrack.pipeline import run_tracker
 from bintrack.trackers import TrackerOptions, make_tracker
@@ -65,11 +67,11 @@ def test_fewer_detections_than_the_threshold_give_no_report():
 
 
 def test_fit_needs_a_gain_and_an_edge_margin_of_at_least_zero():
-    with pytest.raises(CommandError, match="min_gain"):
+    with pytest.raises(TrackerConfigError, match="min_gain"):
         GridFusion(grid_deployment(), FusionConfig(min_gain=-1.0))
-    with pytest.raises(CommandError, match="expected_split_gain"):
+    with pytest.raises(TrackerConfigError, match="expected_split_gain"):
         GridFusion(grid_deployment(), FusionConfig(expected_split_gain=-1.0))
-    with pytest.raises(CommandError, match="shared_edge"):
+    with pytest.raises(TrackerConfigError, match="shared_edge"):
         GridFusion(grid_deployment(), FusionConfig(shared_edge=float("nan")))
 
 
@@ -89,7 +91,7 @@ def test_with_the_papers_trigger_a_cell_is_computed_only_when_its_owner_detects(
 def test_fusion_needs_disk_sensors():
     deployment = Deployment(name="m", units="m", region=Region(xmin=0, ymin=0, xmax=10, ymax=10),
                             sensors=[MotionSensor(id="m1", x=1, y=1, period=1.0)])
-    with pytest.raises(CommandError, match="disk or sector"):
+    with pytest.raises(TrackerConfigError, match="disk or sector"):
         GridFusion(deployment)
 
 
@@ -329,7 +331,7 @@ def test_a_parameter_out_of_range_is_refused(field, value):
 def test_the_fast_draw_gives_randranges_draws():
     import random
 
-    from bintrack.trackers.multi.mcmcda import _below
+    from bintrack.trackers.multi.mcmcda_moves import below as _below
 
     for seed in range(5):
         ours, theirs = random.Random(seed), random.Random(seed)

@@ -4,20 +4,10 @@ import msgpack
 import pytest
 
 from bintrack.cli import main as cli
-from bintrack.messages import (
-    MESSAGE_TYPES,
-    Clock,
-    Deployment,
-    LocalEstimate,
-    MessageError,
-    PositionReport,
-    PositionReports,
-    Track,
-    TrackSet,
-    Transition,
-    decode,
-    encode,
-)
+from bintrack.bus_payloads import Clock, LocalEstimate, PositionReport, PositionReports, Track, TrackSet, Transition
+from bintrack.deployment_model import Deployment
+from bintrack.message_codec import MessageError, decode, encode
+from bintrack.message_schema import MESSAGE_TYPES
 
 SAMPLES = [
     Transition(t=1.5, sensor="n1", value=1, previous=0, seq=3),
@@ -90,7 +80,8 @@ def test_the_hot_path_views_have_the_models_fields_and_refuse_what_they_refuse()
     import msgpack
     import msgspec
 
-    from bintrack.messages import VIEWS, Clock, MessageError, RawSample, Transition, decode_view, encode
+    from bintrack.bus_payloads import Clock, RawSample, Transition
+    from bintrack.message_codec import VIEWS, MessageError, decode_view, encode
 
     for cls, view in VIEWS.items():
         fields = {f.name: f.default for f in msgspec.structs.fields(view)}
@@ -112,14 +103,16 @@ def test_the_hot_path_views_have_the_models_fields_and_refuse_what_they_refuse()
 
 
 def test_a_raw_sample_encoded_without_its_model_has_the_models_bytes():
-    from bintrack.messages import RawSample, encode, encode_raw_sample
+    from bintrack.bus_payloads import RawSample
+    from bintrack.message_codec import encode, encode_raw_sample
 
     for t, sensor, value in ((1, "a", 1), (2.5, "n17", -1), (0.0, "s", 0)):
         assert encode_raw_sample(t, sensor, value) == encode(RawSample(t=t, sensor=sensor, value=value))
 
 
 def test_a_transition_encoded_without_its_model_has_the_models_bytes():
-    from bintrack.messages import Transition, encode, encode_transition
+    from bintrack.bus_payloads import Transition
+    from bintrack.message_codec import encode, encode_transition
     from bintrack.live.sensor_hosting import TRANSITION_FIELDS, Sent
 
     assert TRANSITION_FIELDS == ("version", *Sent._fields)  # the sensor agent's checkpoint layout

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bintrack.formats import ObjectRow, TrackRow, TruthRow
-from bintrack.messages import Deployment
+from bintrack.deployment_model import Deployment
 from bintrack.evaluation.metrics import (
     ErrorStats,
     area_between,

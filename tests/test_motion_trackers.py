@@ -15,8 +15,9 @@ from bintrack.trackers.motion.closer_farther import (
     svm_velocity,
     velocity_plane,
 )
-from bintrack.errors import CommandError
-from bintrack.messages import Deployment, MotionSensor, Region, Transition, VelocityEstimate
+from bintrack.errors import TrackerConfigError
+from bintrack.bus_payloads import Transition, VelocityEstimate
+from bintrack.deployment_model import Deployment, MotionSensor, Region
 from bintrack.pipeline import TrackerDriver
 from bintrack.sim.scenarios import build_scenario, simulate
 from bintrack.trackers.motion.tracker import (
@@ -274,9 +275,9 @@ def test_transitions_of_other_sensors_are_ignored_and_options_checked():
     tracker = _Recorder(deployment)
     assert tracker.update(_tr(0.0, "not-a-motion-sensor", 1, 0, 1)) == []
     assert tracker.flush(math.inf) == []
-    with pytest.raises(CommandError):
+    with pytest.raises(TrackerConfigError):
         VelocityPlaneTracker(deployment, window=0)
-    with pytest.raises(CommandError):
+    with pytest.raises(TrackerConfigError):
         SvmTracker(deployment, period=-1.0)
     assert PprTracker(deployment, period=0.5).period == 0.5
     assert VelocityPlaneTracker(deployment).period == 1.0
@@ -285,7 +286,7 @@ def test_transitions_of_other_sensors_are_ignored_and_options_checked():
 @pytest.mark.parametrize("name", ["velocity-plane", "svm", "ppr", "motion-rw"])
 def test_non_motion_deployment_raises(name):
     disks = simulate("uniform-800", 1, nodes=20).deployment
-    with pytest.raises(CommandError, match="motion") as info:
+    with pytest.raises(TrackerConfigError, match="motion") as info:
         MOTION_TRACKERS[name](disks)
     assert "\n" not in str(info.value)
     assert MOTION_TRACKERS[name].name == name

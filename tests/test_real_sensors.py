@@ -16,7 +16,7 @@ from bintrack.calibration.sample_series import sample_series
 from bintrack.cli import main as cli
 from bintrack.evaluation.clear_mot import Frame, clear_mot
 from bintrack.formats import open_dataset, read_deployment
-from bintrack.messages import Deployment, DiskSensor, Region
+from bintrack.deployment_model import Deployment, DiskSensor, Region
 from bintrack.sim.engine import simulate_scenario
 from bintrack.sim.recorded_paths import recording_scenario
 from bintrack.formats import TruthRow

@@ -13,21 +13,12 @@ from mcap.reader import make_reader
 from bintrack.cli import main as cli
 from bintrack.keys import Keys
 from bintrack.formats import FormatError, ObjectRow, TrackRow, read_objects, read_tracks
-from bintrack.messages import (
-    Clock,
-    Deployment,
-    DiskSensor,
-    EndOfStream,
-    LineObjectEstimate,
-    LocalEstimate,
-    RawSample,
-    Region,
-    Track,
-    TrackSet,
-    VelocityEstimate,
-    encode,
-    json_schema,
+from bintrack.bus_payloads import (
+    Clock, EndOfStream, LineObjectEstimate, LocalEstimate, RawSample, Track, TrackSet, VelocityEstimate,
 )
+from bintrack.deployment_model import Deployment, DiskSensor, Region
+from bintrack.message_codec import encode
+from bintrack.message_schema import json_schema
 from bintrack.live.recording import RecordingWriter, log_time_ns, open_recording, replay_items, shift_payload
 
 from support import HUNG, FakeBus

@@ -9,7 +9,9 @@ import pytest
 
 from bintrack.formats import FormatError, parse_deployment
 from bintrack.keys import Keys, parse_key
-from bintrack.messages import Region, Track, TrackSet, decode, encode
+from bintrack.bus_payloads import Track, TrackSet
+from bintrack.deployment_model import Region
+from bintrack.message_codec import decode, encode
 from bintrack.regions import WHOLE, RegionMap, grid_areas, grid_shape
 from bintrack.trackers.multi.region_merge import MergeConfig, RegionMerge
 

@@ -22,7 +22,8 @@ from bintrack.evaluation.track_agreement import agreement
 from bintrack.formats import TrackRow, read_tracks
 from bintrack.keys import Keys
 from bintrack.live.session_options import client_config
-from bintrack.messages import Clock, TrackSet, decode
+from bintrack.bus_payloads import Clock, TrackSet
+from bintrack.message_codec import decode
 from support import HUNG, bintrack, free_port, wait_logged
 from test_mesh import start_chain
 

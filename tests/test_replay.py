@@ -16,7 +16,9 @@ import zenoh
 from bintrack.keys import Keys
 from bintrack.live.session_options import client_config, router_config
 from bintrack.formats import Event, open_dataset, write_dataset
-from bintrack.messages import Clock, Deployment, DiskSensor, EndOfStream, RawSample, Region, decode, encode
+from bintrack.bus_payloads import Clock, EndOfStream, RawSample
+from bintrack.deployment_model import Deployment, DiskSensor, Region
+from bintrack.message_codec import decode, encode
 from bintrack.live.recording import open_recording
 from bintrack.live.replay_schedule import (Consumers, End, NothingToReplay, Pacer, Publish, Tick, default_clock_period,
                                            schedule)

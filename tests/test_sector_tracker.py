@@ -9,7 +9,8 @@ from bintrack.trackers.arc.arcs import ArcSet
 from bintrack.evaluation.eval_report import evaluate
 from bintrack.formats import open_dataset, write_dataset, write_tracks
 from bintrack.geometry import TWO_PI
-from bintrack.messages import Deployment, Transition
+from bintrack.bus_payloads import Transition
+from bintrack.deployment_model import Deployment
 from bintrack.pipeline import output_rows, run_tracker
 from bintrack.sensing import SectorModel, model_for
 from bintrack.sim import trajectories

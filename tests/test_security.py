@@ -23,7 +23,8 @@ from bintrack.live.session_options import client_config as plain_client_config
 from bintrack.live.secure_profile import (PROFILE, awaiting_token_holders, client_config, restrict_sensor_agents,
                                           role_of, router_config, secure_commands)
 from bintrack.live.stack import region_stack_commands
-from bintrack.messages import Clock, Track, TrackSet, encode
+from bintrack.bus_payloads import Clock, Track, TrackSet
+from bintrack.message_codec import encode
 
 from support import DATASETS, HUNG, REPO, bintrack, free_port
 from test_mesh import RouterProcess

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from bintrack.messages import DiskSensor, LineSensor, MotionSensor, SectorSensor
+from bintrack.deployment_model import DiskSensor, LineSensor, MotionSensor, SectorSensor
 from bintrack.sensing import (
     DiskModel,
     LineModel,

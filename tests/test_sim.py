@@ -11,7 +11,7 @@ import pytest
 
 from bintrack.cli.main import main
 from bintrack.formats import Event, open_dataset
-from bintrack.messages import DiskSensor, LineSensor, MotionSensor, Region, SectorSensor
+from bintrack.deployment_model import DiskSensor, LineSensor, MotionSensor, Region, SectorSensor
 from bintrack.sensing import model_for
 from bintrack.sim import ScenarioError, build_scenario, simulate, simulate_scenario, truth_rows
 from bintrack.sim.faults import packet_faults, wrong_reports

@@ -16,8 +16,10 @@ from bintrack.trackers import make_tracker
 from bintrack.trackers.multi import target_fit
 from bintrack.trackers.multi.fusion import GridFusion
 from bintrack.trackers.multi.fusion_config import FusionConfig
-from bintrack.trackers.multi.mcmcda import MCMCDAConfig, OnlineMCMCDA
-from bintrack.messages import Deployment, DiskSensor, PositionReport, PositionReports, Region, TrackSet
+from bintrack.trackers.multi.mcmcda import OnlineMCMCDA
+from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
+from bintrack.bus_payloads import PositionReport, PositionReports, TrackSet
+from bintrack.deployment_model import Deployment, DiskSensor, Region
 from support import DATASETS
 from bintrack.trackers.multi.target_fit import Expectation
 

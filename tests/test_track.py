@@ -6,7 +6,8 @@ import pytest
 
 from bintrack.cli import main as cli
 from bintrack.formats import Event, open_dataset, read_tracks, read_truth
-from bintrack.messages import Deployment, Transition
+from bintrack.bus_payloads import Transition
+from bintrack.deployment_model import Deployment
 from bintrack.pipeline import output_rows, run_tracker
 from bintrack.trackers import BASELINES, make_tracker
 from bintrack.transition_detector import TransitionDetector

@@ -21,7 +21,9 @@ from pathlib import Path
 
 import pytest
 
-from bintrack.messages import Clock, Deployment, TrackSet, Transition, TruthSample, encode
+from bintrack.bus_payloads import Clock, TrackSet, Transition, TruthSample
+from bintrack.deployment_model import Deployment
+from bintrack.message_codec import encode
 from bintrack.live.recording import open_recording
 from bintrack.view.map_messages import deployment_item, message_item
 from bintrack.view.map_server import PageFeed

@@ -14,7 +14,8 @@ import zenoh
 
 from bintrack.live.session_options import client_config
 from bintrack.keys import Keys
-from bintrack.messages import LocalEstimate, Track, TrackSet, Transition, encode
+from bintrack.bus_payloads import LocalEstimate, Track, TrackSet, Transition
+from bintrack.message_codec import encode
 from support import HUNG, REPO, bintrack, free_port, wait_until
 
 NET = "test-watch"

@@ -18,14 +18,9 @@ from typing import IO, NamedTuple, TextIO
 
 from pydantic import ValidationError
 
-from bintrack.messages import (
-    Deployment,
-    DiskSensor,
-    LineSensor,
-    MotionSensor,
-    SectorSensor,
-    location_text,
-)
+from bintrack.errors import BintrackError
+from bintrack.deployment_model import Deployment, DiskSensor, LineSensor, MotionSensor, SectorSensor
+from bintrack.message_codec import location_text
 
 DEPLOYMENT_FILE = "deployment.json"
 EVENTS_FILE = "events.csv"
@@ -37,7 +32,7 @@ TRACKS_HEADER = ("t", "track", "x", "y", "vx", "vy")
 OBJECTS_HEADER = ("object", "t_first", "t_last", "entry_x", "entry_y", "exit_x", "exit_y", "vx", "vy")
 
 
-class FormatError(ValueError):
+class FormatError(BintrackError, ValueError):
     """Malformed input file: ``str()`` is ``FILE:LINE: FIELD: what is wrong``."""
 
     def __init__(self, path: Path | str, line: int | None, field: str, message: str):

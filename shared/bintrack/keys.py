@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 
-from bintrack.messages import check_sensor_id
+from bintrack.deployment_model import check_sensor_id
 
 ROOT = "bintrack"
 

@@ -7,7 +7,8 @@ import math
 from collections.abc import Callable, Iterable, Iterator
 
 from bintrack.formats import Dataset, ObjectRow, TrackRow
-from bintrack.messages import LineObjectEstimate, LocalEstimate, Message, Transition, TrackSet, VelocityEstimate
+from bintrack.bus_payloads import LineObjectEstimate, LocalEstimate, TrackSet, Transition, VelocityEstimate
+from bintrack.message_base import Message
 from bintrack.ordering import ReorderBuffer
 from bintrack.trackers import Tracker
 from bintrack.transition_detector import TransitionDetector

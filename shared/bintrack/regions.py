@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import shapely
 
-from bintrack.messages import Deployment, Region, RegionArea
+from bintrack.deployment_model import Deployment, Region, RegionArea
 
 WHOLE = "all"
 

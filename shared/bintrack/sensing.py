@@ -1,6 +1,6 @@
 """Sensing models: what a binary sensor reports for a target's state.
 
-Each model is built from the pydantic sensor of :mod:`bintrack.messages` with
+Each model is built from the pydantic sensor of :mod:`bintrack.deployment_model` with
 :func:`model_for` and works on arrays: ``positions`` of shape (..., 2) in deployment units,
 ``velocities`` of shape (..., 2) in units/s. Values follow DESIGN §6: disk 1/0, sector
 0..s−1 or −1, motion +1/−1, line 1 (the beam was crossed).
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bintrack.geometry import TWO_PI, normalize_angle
-from bintrack.messages import DiskSensor, LineSensor, MotionSensor, SectorSensor
+from bintrack.deployment_model import DiskSensor, LineSensor, MotionSensor, SectorSensor
 
 # Paper 001 §5.2: the exponential law falls to 0.01 % at R_out.
 EXPONENTIAL_FLOOR = 1e-4

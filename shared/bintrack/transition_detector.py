@@ -8,7 +8,8 @@ instant (the beam was crossed), so every report of it is a transition.
 from __future__ import annotations
 
 from bintrack.formats import Event, idle_value
-from bintrack.messages import Deployment, LineSensor, Transition
+from bintrack.bus_payloads import Transition
+from bintrack.deployment_model import Deployment, LineSensor
 
 
 class TransitionDetector:

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bintrack.formats import Event
-from bintrack.messages import Deployment, DiskSensor
+from bintrack.deployment_model import Deployment, DiskSensor
 from bintrack.sensing import reports_presence
 
 

@@ -18,7 +18,7 @@ from bintrack.calibration.pir_calibration import Estimate, Fit, calibrate, calib
 from bintrack.calibration.sample_series import sample_series
 from bintrack.errors import CommandError
 from bintrack.formats import EVENTS_FILE, TRUTH_FILE, open_dataset, write_deployment
-from bintrack.messages import DiskSensor
+from bintrack.deployment_model import DiskSensor
 
 PARAMETERS = (("range", "footprint radius", "units"), ("pd", "pd per sample", ""), ("pfa", "pfa per sample", ""),
               ("hold", "hold time", "s"), ("still", "pd standing still / pd", ""))

@@ -14,7 +14,7 @@ from bintrack.formats import write_dataset
 from bintrack.importers.binary_matrix import (METRES_PER, matrix_events, parse_columns, read_sample_matrix,
                                               read_sensor_table)
 from bintrack.importers.cvml import read_cvml
-from bintrack.messages import Deployment, DiskSensor, Region
+from bintrack.deployment_model import Deployment, DiskSensor, Region
 
 
 def _region(text: str) -> tuple[float, float, float, float]:

@@ -12,7 +12,7 @@ import importlib
 import sys
 
 from bintrack import __version__
-from bintrack.errors import CommandError
+from bintrack.errors import CommandError, TrackerConfigError
 from bintrack.formats import FormatError
 
 # subcommand -> (module implementing it, one-line help); only the chosen module is imported
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser(chosen).parse_args(argv)
     try:
         return int(args._run(args) or 0)
-    except (FormatError, CommandError) as exc:
+    except (FormatError, CommandError, TrackerConfigError) as exc:
         print(f"bintrack {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except BrokenPipeError:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from bintrack.argtypes import output_file
-from bintrack.messages import json_schema_text
+from bintrack.message_schema import json_schema_text
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -14,7 +14,7 @@ from bintrack.pipeline import output_objects, output_rows, run_regions, run_trac
 from bintrack.regions import RegionMap
 from bintrack.trackers.multi.region_merge import RegionMerge
 from bintrack.cli.progress import Progress
-from bintrack.trackers.multi.mcmcda import MCMCDAConfig
+from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
 from bintrack.trackers import OBJECT_TRACKERS, TRACKER_NAMES, make_tracker, sensor_mismatch
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_options
 

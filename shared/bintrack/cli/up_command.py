@@ -41,7 +41,8 @@ from bintrack.live.session_options import DEFAULT_ENDPOINT, STATE_DIR_OPTION, ro
 from bintrack.errors import CommandError
 from bintrack.formats import DEPLOYMENT_FILE, open_dataset, write_deployment
 from bintrack.keys import Keys, ParsedKey, parse_key
-from bintrack.messages import Clock, MessageError, decode
+from bintrack.bus_payloads import Clock
+from bintrack.message_codec import MessageError, decode
 from bintrack.live.stack import ServiceCommand, is_broker, region_stack_commands, stack_commands
 from bintrack.regions import grid_areas, grid_shape
 from bintrack.live.secure_profile import secure_up

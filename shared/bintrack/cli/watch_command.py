@@ -17,7 +17,7 @@ import sys
 from bintrack.cli.network_choice import no_router
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.live.network_client import BintrackClient
-from bintrack.messages import LocalEstimate, TrackSet, Transition
+from bintrack.bus_payloads import LocalEstimate, TrackSet, Transition
 
 WHAT = ("tracks", "estimates", "transitions")
 

@@ -25,7 +25,7 @@ from scipy import stats
 from scipy.optimize import linear_sum_assignment
 
 from bintrack.formats import ObjectRow, TrackRow, TruthRow
-from bintrack.messages import Deployment, DiskSensor, SectorSensor
+from bintrack.deployment_model import Deployment, DiskSensor, SectorSensor
 
 # truth.csv is written with µs resolution: an estimate within this of a target's first or last
 # truth time still sees the target.

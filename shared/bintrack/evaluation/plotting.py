@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Rectangle
 
 from bintrack.formats import Dataset, Event, ObjectRow, TrackRow
-from bintrack.messages import Deployment, DiskSensor, LineSensor, MotionSensor, SectorSensor
+from bintrack.deployment_model import Deployment, DiskSensor, LineSensor, MotionSensor, SectorSensor
 from bintrack.sensing import reports_presence
 
 if TYPE_CHECKING:

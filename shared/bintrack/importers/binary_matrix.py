@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from bintrack.formats import Event, FormatError
-from bintrack.messages import check_sensor_id
+from bintrack.deployment_model import check_sensor_id
 
 METRES_PER = {"mm": 0.001, "cm": 0.01, "m": 1.0, "km": 1000.0, "in": 0.0254, "ft": 0.3048}
 """metres in one of each length unit the importer reads"""

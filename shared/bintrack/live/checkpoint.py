@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from bintrack.live.gap_repair import IntakeState
-    from bintrack.messages import TrackSet
+    from bintrack.bus_payloads import TrackSet
     from bintrack.pipeline import TrackerDriver
     from bintrack.trackers.multi.region_merge import RegionMerge
     from bintrack.transition_detector import TransitionDetector
@@ -35,8 +35,10 @@ CHECKPOINT_SPAN = 8.0  # … or s of event time, whichever comes first (well ins
 
 log = logging.getLogger("bintrack")
 
+from bintrack.errors import BintrackError
 
-class CheckpointRefused(Exception):
+
+class CheckpointRefused(BintrackError):
     """The checkpoint exists but is not safe or not readable; the message says why in one line."""
 
 

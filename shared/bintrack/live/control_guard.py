@@ -27,7 +27,8 @@ import msgpack
 import zenoh
 
 from bintrack.keys import Keys, ParsedKey, parse_key
-from bintrack.messages import Clock, MessageError, decode_view
+from bintrack.bus_payloads import Clock
+from bintrack.message_codec import MessageError, decode_view
 
 MAX_STEPS = 4.0  # a tick may be this many announced steps past the last one admitted
 REPLAY = "replay"

@@ -7,7 +7,8 @@ import logging
 
 import zenoh
 
-from bintrack.messages import Deployment, MessageError, decode
+from bintrack.deployment_model import Deployment
+from bintrack.message_codec import MessageError, decode
 
 RETRY = 0.3  # s between two asks while nobody answers
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Container
 
 from bintrack.keys import Keys
-from bintrack.messages import LocalEstimate
+from bintrack.bus_payloads import LocalEstimate
 
 
 def estimate_problem(estimate: LocalEstimate, key: str, keys: Keys, nodes: Container[str], tracker: str) -> str | None:

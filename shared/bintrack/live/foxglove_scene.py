@@ -20,7 +20,9 @@ import math
 from pathlib import Path
 from typing import Any
 
-from bintrack.messages import Deployment, DiskSensor, Message, PositionReports, SectorSensor, TrackSet, Transition, TruthSample
+from bintrack.bus_payloads import PositionReports, TrackSet, Transition, TruthSample
+from bintrack.deployment_model import Deployment, DiskSensor, SectorSensor
+from bintrack.message_base import Message
 
 SCENE_TOPIC = "/scene"
 FRAME = "map"

@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 
 from bintrack.keys import Keys
 from bintrack.live.sequence_checks import SequenceCheck, SourceCheck
-from bintrack.messages import MessageError, SensorState, Transition, decode
+from bintrack.bus_payloads import SensorState, Transition
+from bintrack.message_codec import MessageError, decode
 
 log = logging.getLogger("bintrack")
 

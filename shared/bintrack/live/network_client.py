@@ -1,7 +1,7 @@
 """An asyncio client of a bintrack network, for other Python programs.
 
 Connects to the Zenoh router of a deployment and reads the live results as decoded,
-validated messages (:mod:`bintrack.messages`)::
+validated messages (:mod:`bintrack.bus_payloads`)::
 
     import asyncio
     from bintrack.client import BintrackClient
@@ -40,7 +40,9 @@ from bintrack.live.bad_input import BadInput
 from bintrack.live.inbox import DEFAULT_INBOX, Inbox
 from bintrack.live.session_options import open_session, zenoh_config
 from bintrack.keys import ROOT, Keys, parse_key
-from bintrack.messages import LocalEstimate, Message, MessageError, TrackSet, Transition, decode
+from bintrack.bus_payloads import LocalEstimate, TrackSet, Transition
+from bintrack.message_base import Message
+from bintrack.message_codec import MessageError, decode
 
 DEFAULT_CAPACITY = 1024
 
@@ -235,18 +237,18 @@ class BintrackClient:
     # -- subscriptions -------------------------------------------------------------------
 
     def tracks(self, capacity: int | None = None, region: str | None = None) -> Subscription[TrackSet]:
-        """Every :class:`~bintrack.messages.TrackSet` the base station (or the merge of the
+        """Every :class:`~bintrack.bus_payloads.TrackSet` the base station (or the merge of the
         regions) publishes from now on; with ``region``, that region's base station's own
         (local track ids)."""
         key = self.keys.tracks() if region is None else self.keys.region_tracks(region)
         return self.subscribe(key, TrackSet, capacity)
 
     def estimates(self, node: str = "*", capacity: int | None = None) -> Subscription[LocalEstimate]:
-        """Every :class:`~bintrack.messages.LocalEstimate` of peer agent ``node`` (``*``: all)."""
+        """Every :class:`~bintrack.bus_payloads.LocalEstimate` of peer agent ``node`` (``*``: all)."""
         return self.subscribe(self.keys.estimate(node), LocalEstimate, capacity)
 
     def transitions(self, sensor: str = "*", capacity: int | None = None) -> Subscription[Transition]:
-        """Every :class:`~bintrack.messages.Transition` of ``sensor`` (``*``: all)."""
+        """Every :class:`~bintrack.bus_payloads.Transition` of ``sensor`` (``*``: all)."""
         return self.subscribe(self.keys.transition(sensor), Transition, capacity)
 
     def subscribe(self, key_expr: str, cls: type[M], capacity: int | None = None) -> Subscription[M]:

@@ -13,7 +13,8 @@ import math
 import time
 from collections.abc import Callable
 
-from bintrack.messages import Clock, EndOfStream, Message
+from bintrack.bus_payloads import Clock, EndOfStream
+from bintrack.message_base import Message
 
 ACK_TICKS = 8  # progress reports pending at most (replay's --max-ahead must be at least this to never wait) …
 ACK_WAIT = 0.005  # … or s of wall clock since the last report, whichever comes first

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 from bintrack.keys import ParsedKey, parse_key
 from bintrack.live.recording import KIND_TYPES, event_time
-from bintrack.messages import MessageError, decode_view, is_resent
+from bintrack.message_codec import MessageError, decode_view, is_resent
 
 # outputs a restarted service may send again, recorded once (transitions are not here: they
 # carry their seq, and remembering them per sensor would cost memory that grows for long)

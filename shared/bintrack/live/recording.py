@@ -45,23 +45,13 @@ from mcap.writer import IndexType, Writer
 from bintrack import __version__
 from bintrack.formats import FormatError, deployment_text, open_input, parse_deployment
 from bintrack.keys import Keys, parse_key
-from bintrack.messages import (
-    Clock,
-    Deployment,
-    EndOfStream,
-    LineObjectEstimate,
-    LocalEstimate,
-    Message,
-    MessageError,
-    PositionReports,
-    RawSample,
-    SensorState,
-    TrackSet,
-    Transition,
-    TruthSample,
-    VelocityEstimate,
-    decode,
+from bintrack.bus_payloads import (
+    Clock, EndOfStream, LineObjectEstimate, LocalEstimate, PositionReports, RawSample, SensorState, TrackSet,
+    Transition, TruthSample, VelocityEstimate,
 )
+from bintrack.deployment_model import Deployment
+from bintrack.message_base import Message
+from bintrack.message_codec import MessageError, decode
 
 RECORDING_FORMAT = "bintrack.recording/1"
 RECORDING_METADATA = "bintrack.recording"

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from bintrack.formats import FormatError
 from bintrack.live.recording import RecordingWriter, open_recording
-from bintrack.messages import Deployment
+from bintrack.deployment_model import Deployment
 
 FLUSH_INTERVAL, FLUSH_SPAN = 5.0, 32.0  # s of wall clock or of event time between two flushes of the file
 CHUNK_SIZE = 1024 * 1024  # bytes: few chunks, so that the chunk index kept in memory stays small

@@ -14,7 +14,8 @@ from bintrack.live.checkpoint import ReplayCheckpoint
 from bintrack.live.replay_gate import ReplayGate
 from bintrack.live.replay_schedule import End, Pacer, Publish, Tick
 from bintrack.live.replay_source import Put, ReplaySource
-from bintrack.messages import RESENT, Clock, EndOfStream, encode
+from bintrack.bus_payloads import Clock, EndOfStream
+from bintrack.message_codec import RESENT, encode
 
 PROGRESS_INTERVAL = 5.0  # s of wall clock between progress lines
 YIELD_EVERY = 0.002  # s of wall clock between two turns given to the loop while publishing (waits give more)

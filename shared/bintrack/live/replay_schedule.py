@@ -23,10 +23,12 @@ from collections.abc import Callable, Hashable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
+from bintrack.errors import BintrackError
+
 T = TypeVar("T")
 
 
-class NothingToReplay(ValueError):
+class NothingToReplay(BintrackError, ValueError):
     """A pass of the source had no item to publish."""
 
 

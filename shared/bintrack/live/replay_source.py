@@ -16,7 +16,8 @@ from bintrack.formats import TruthRow, open_dataset
 from bintrack.keys import Keys
 from bintrack.live.recording import Record, open_recording, replay_items, shift_payload
 from bintrack.live.replay_schedule import Publish
-from bintrack.messages import Clock, TruthSample, encode, encode_raw_sample
+from bintrack.bus_payloads import Clock, TruthSample
+from bintrack.message_codec import encode, encode_raw_sample
 
 Put = Callable[[str, bytes, bytes | None], None]
 

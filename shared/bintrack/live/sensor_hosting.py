@@ -11,7 +11,9 @@ from typing import NamedTuple
 from bintrack.formats import Event
 from bintrack.keys import Keys
 from bintrack.live.checkpoint import SensorAgentCheckpoint
-from bintrack.messages import SCHEMA_VERSION, RawSample, SensorState, Transition, encode_transition
+from bintrack.bus_payloads import RawSample, SensorState, Transition
+from bintrack.message_base import SCHEMA_VERSION
+from bintrack.message_codec import encode_transition
 from bintrack.transition_detector import TransitionDetector
 
 HISTORY = 256  # transitions kept per sensor for gap repair …

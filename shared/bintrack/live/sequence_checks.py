@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from bintrack.messages import Transition
+from bintrack.bus_payloads import Transition
 
 
 class SequenceCheck:

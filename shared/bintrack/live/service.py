@@ -40,8 +40,9 @@ from bintrack.live.presence import OwnToken, Presence, token_present
 from bintrack.live.progress_reports import ProgressReports
 from bintrack.live.router_watch import RouterWatch
 from bintrack.live.session_options import DEFAULT_MAX_PAYLOAD, open_session, zenoh_config
-from bintrack.messages import EndOfStream as EndOfStreamMessage
-from bintrack.messages import Message, MessageError, decode, decode_view, encode
+from bintrack.bus_payloads import EndOfStream as EndOfStreamMessage
+from bintrack.message_base import Message
+from bintrack.message_codec import MessageError, decode, decode_view, encode
 
 log = logging.getLogger("bintrack")
 
@@ -148,7 +149,7 @@ class Service:
 
     def read(self, cls: type, sample: zenoh.Sample):
         """As :meth:`decode`, but a hot message (RawSample, Transition, Clock, EndOfStream) comes
-        as a read-only view with the same fields (:func:`bintrack.messages.decode_view`)."""
+        as a read-only view with the same fields (:func:`bintrack.message_codec.decode_view`)."""
         try:
             return decode_view(cls, sample.payload.to_bytes())
         except MessageError as exc:

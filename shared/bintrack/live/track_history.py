@@ -8,7 +8,8 @@ from collections.abc import Callable, Iterable
 
 import zenoh
 
-from bintrack.messages import MessageError, TrackSet, decode, encode
+from bintrack.bus_payloads import TrackSet
+from bintrack.message_codec import MessageError, decode, encode
 
 TRACKS_HISTORY = 1024  # recent track sets kept for the ``tracks?after=T`` queryable
 

@@ -19,7 +19,9 @@ from bintrack.live.checkpoint import IntakeCheckpoint
 from bintrack.live.gap_repair import GapRepair
 from bintrack.live.service import Service, log
 from bintrack.live.watermark import Watermark
-from bintrack.messages import Clock, Deployment, Message, Transition
+from bintrack.bus_payloads import Clock, Transition
+from bintrack.deployment_model import Deployment
+from bintrack.message_base import Message
 from bintrack.pipeline import TrackerDriver
 from bintrack.trackers import Tracker
 

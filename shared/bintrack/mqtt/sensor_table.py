@@ -17,7 +17,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from bintrack.messages import Deployment, Region, first_error
+from bintrack.deployment_model import Deployment, Region
+from bintrack.message_codec import first_error
 
 PAYLOAD_FORMATS = ("zigbee2mqtt", "on-off", "one-zero", "json")
 ZIGBEE_FIELDS = ("occupancy", "presence", "contact")

@@ -13,7 +13,7 @@ from collections.abc import Iterable, Iterator
 from datetime import datetime, timedelta, timezone
 
 from bintrack.formats import Event
-from bintrack.messages import Deployment, DiskSensor
+from bintrack.deployment_model import Deployment, DiskSensor
 
 BASE_TOPIC = "zigbee2mqtt"
 END_TOPIC = "bintrack/end"

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from bintrack.messages import DiskSensor, SectorSensor
+from bintrack.deployment_model import DiskSensor, SectorSensor
 
 
 def assign_clocks(sensors: Sequence[DiskSensor | SectorSensor], rng: np.random.Generator,

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from bintrack.messages import DiskSensor, LineSensor, MotionSensor, Region, SectorSensor
+from bintrack.deployment_model import DiskSensor, LineSensor, MotionSensor, Region, SectorSensor
 
 
 def _ids(prefix: str, count: int) -> list[str]:

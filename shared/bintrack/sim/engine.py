@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from bintrack.formats import Event, TruthRow
-from bintrack.messages import Deployment, DiskSensor, LineSensor, MotionSensor, SectorSensor
+from bintrack.deployment_model import Deployment, DiskSensor, LineSensor, MotionSensor, SectorSensor
 from bintrack.sim.faults import packet_faults, wrong_reports
 from bintrack.sim.sampling import periodic_events
 from bintrack.sim.trajectories import Trajectory

@@ -9,7 +9,7 @@ from collections import defaultdict
 from collections.abc import Iterable
 
 from bintrack.formats import TruthRow
-from bintrack.messages import Deployment
+from bintrack.deployment_model import Deployment
 from bintrack.sim.engine import Scenario
 from bintrack.sim.trajectories import LinearSegment, Trajectory
 

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from bintrack.formats import Event, idle_value
-from bintrack.messages import DiskSensor, MotionSensor, SectorSensor
+from bintrack.deployment_model import DiskSensor, MotionSensor, SectorSensor
 from bintrack.sensing import DiskModel, MotionModel, SectorModel, model_for
 from bintrack.sim.trajectories import Trajectory
 

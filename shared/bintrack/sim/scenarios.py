@@ -14,14 +14,15 @@ import math
 
 import numpy as np
 
-from bintrack.messages import Calibration, CalibrationPass, Deployment, LineSensor, Region
+from bintrack.errors import BintrackError
+from bintrack.deployment_model import Calibration, CalibrationPass, Deployment, LineSensor, Region
 from bintrack.sim import deployments, trajectories
 from bintrack.sim.clocks import assign_clocks
 from bintrack.sim.engine import FAULTS, Progress, Scenario, SimResult, simulate_scenario
 from bintrack.sim.trajectories import Trajectory
 
 
-class ScenarioError(ValueError):
+class ScenarioError(BintrackError, ValueError):
     """An option a scenario does not take, or an impossible value; the text is one line."""
 
 

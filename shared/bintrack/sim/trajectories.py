@@ -17,7 +17,7 @@ from typing import Union
 import numpy as np
 
 from bintrack import geometry
-from bintrack.messages import Region
+from bintrack.deployment_model import Region
 
 
 @dataclass(frozen=True)

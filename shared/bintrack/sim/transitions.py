@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from bintrack.formats import Event, idle_value
-from bintrack.messages import DiskSensor, LineSensor, SectorSensor
+from bintrack.deployment_model import DiskSensor, LineSensor, SectorSensor
 from bintrack.sensing import DiskModel, LineModel, SectorModel, model_for
 from bintrack.sim.trajectories import Trajectory
 

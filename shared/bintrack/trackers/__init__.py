@@ -10,7 +10,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
-from bintrack.messages import Deployment
+from bintrack.deployment_model import Deployment
+from bintrack.errors import TrackerConfigError
 from bintrack.trackers.base import Tracker
 
 # Each factory imports its tracker's module when called: a service loads the one tracker it runs
@@ -93,7 +94,7 @@ def _motion(kind: str) -> Callable[[Deployment, TrackerOptions], Tracker]:
 
 def _mcmcda(d: Deployment, o: TrackerOptions) -> Tracker:
     from bintrack.trackers.multi.fusion_config import FusionConfig
-    from bintrack.trackers.multi.mcmcda import MCMCDAConfig
+    from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
     from bintrack.trackers.multi.pir_settings import pir_settings
     from bintrack.trackers.multi.tracker import MCMCDATracker
 
@@ -137,18 +138,18 @@ def runs_on_peers(name: str) -> bool:
 
 
 def check_options(name: str, options: TrackerOptions) -> None:
-    """ValueError (one line) if tracker ``name`` does not exist or cannot take ``options``."""
+    """TrackerConfigError (one line) if tracker ``name`` does not exist or cannot take ``options``."""
     if name not in _PEER and name not in _BASE:
-        raise ValueError(f"unknown tracker {name!r} (available: {', '.join(TRACKER_NAMES)})")
+        raise TrackerConfigError(f"unknown tracker {name!r} (available: {', '.join(TRACKER_NAMES)})")
     if name == "line-fit" and options.window is not None and options.window < 2:
-        raise ValueError(f"line-fit fits a line to at least 2 estimates: --window {options.window} is too small")
+        raise TrackerConfigError(f"line-fit fits a line to at least 2 estimates: --window {options.window} is too small")
     if options.phase2 is not None and name != "adaptive-basis":
-        raise ValueError(f"--phase2 applies to the adaptive-basis tracker only, not {name}")
+        raise TrackerConfigError(f"--phase2 applies to the adaptive-basis tracker only, not {name}")
     if options.estimates is not None:
         if name != "mcmcda":
-            raise ValueError(f"peer estimates feed only the mcmcda tracker, not {name}")
+            raise TrackerConfigError(f"peer estimates feed only the mcmcda tracker, not {name}")
         if not runs_on_peers(options.estimates):
-            raise ValueError(f"peer estimates come from a peer tracker ({', '.join(_PEER)}), not {options.estimates!r}")
+            raise TrackerConfigError(f"peer estimates come from a peer tracker ({', '.join(_PEER)}), not {options.estimates!r}")
 
 
 # the sensor kinds each tracker is made for (paper by paper)

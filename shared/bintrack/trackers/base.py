@@ -7,8 +7,9 @@ from typing import Protocol
 import numpy as np
 from scipy.spatial import cKDTree
 
-from bintrack.messages import Deployment, DiskSensor, LocalEstimate, SectorSensor, Transition
-from bintrack.errors import CommandError
+from bintrack.bus_payloads import LocalEstimate, Transition
+from bintrack.deployment_model import Deployment, DiskSensor, SectorSensor
+from bintrack.errors import TrackerConfigError
 from bintrack.sensing import reports_presence
 
 
@@ -34,7 +35,7 @@ class DiskNetwork:
     def __init__(self, deployment: Deployment, tracker_name: str):
         sensors = [s for s in deployment.sensors if isinstance(s, (DiskSensor, SectorSensor))]
         if not sensors:
-            raise CommandError(f"tracker {tracker_name} needs disk or sector sensors; this deployment has none")
+            raise TrackerConfigError(f"tracker {tracker_name} needs disk or sector sensors; this deployment has none")
         self.ids = [s.id for s in sensors]
         self.index = {sid: i for i, sid in enumerate(self.ids)}
         self.positions = np.array([(s.x, s.y) for s in sensors], dtype=float)

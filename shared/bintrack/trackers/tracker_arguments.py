@@ -8,7 +8,7 @@ import argparse
 from bintrack.argtypes import int_at_least
 from bintrack.trackers import PEER_TRACKERS, TrackerOptions
 from bintrack.trackers.laser.adaptive_basis import PHASE2_METHODS
-from bintrack.trackers.multi.mcmcda import MCMCDAConfig
+from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
 
 
 def add_tracker_arguments(parser: argparse.ArgumentParser) -> None:

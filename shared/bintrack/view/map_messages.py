@@ -9,23 +9,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from bintrack.messages import (
-    Clock,
-    Deployment,
-    DiskSensor,
-    EndOfStream,
-    LineObjectEstimate,
-    LineSensor,
-    LocalEstimate,
-    Message,
-    MotionSensor,
-    PositionReports,
-    SectorSensor,
-    TrackSet,
-    Transition,
-    TruthSample,
+from bintrack.bus_payloads import (
+    Clock, EndOfStream, LineObjectEstimate, LocalEstimate, PositionReports, TrackSet, Transition, TruthSample,
     VelocityEstimate,
 )
+from bintrack.deployment_model import Deployment, DiskSensor, LineSensor, MotionSensor, SectorSensor
+from bintrack.message_base import Message
 
 DIGITS = 4
 

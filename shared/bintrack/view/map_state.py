@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections import OrderedDict, deque
 from typing import Any
 
-from bintrack.messages import Deployment
+from bintrack.deployment_model import Deployment
 from bintrack.view.map_messages import Item, deployment_item
 
 DEFAULT_TAIL = 30.0        # s of event time drawn behind each track and truth target

@@ -25,7 +25,7 @@ from mcap.reader import SeekingReader
 
 from bintrack.errors import CommandError
 from bintrack.keys import parse_key
-from bintrack.messages import MessageError, decode
+from bintrack.message_codec import MessageError, decode
 from bintrack.live.recording import KIND_TYPES, open_recording
 from bintrack.view.map_messages import DRAWN_KINDS, Item, message_item
 from bintrack.view.map_server import DEFAULT_PAGE_QUEUE, PageFeed, listening_socket, make_app, served_line, start_site

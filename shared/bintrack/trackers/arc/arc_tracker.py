@@ -61,7 +61,8 @@ import numpy as np
 from bintrack.trackers.arc.arcs import TOL, Arc, ArcSet, combine, overlap_matrix
 from bintrack.trackers.arc.velocity import LocalClock, VelocityEstimator
 from bintrack.geometry import TWO_PI, normalize_angle
-from bintrack.messages import Deployment, LocalEstimate, Transition
+from bintrack.bus_payloads import LocalEstimate, Transition
+from bintrack.deployment_model import Deployment
 from bintrack.trackers.base import DiskNetwork, SimultaneousTransitions
 
 # A point is on a circle (in a ring) if within this fraction of the radius (batch common point).

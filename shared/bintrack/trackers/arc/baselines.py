@@ -23,7 +23,8 @@ from typing import Literal
 
 import numpy as np
 
-from bintrack.messages import Deployment, LocalEstimate, Transition
+from bintrack.bus_payloads import LocalEstimate, Transition
+from bintrack.deployment_model import Deployment
 from bintrack.trackers.base import DiskNetwork, SimultaneousTransitions
 
 Weighting = Literal["equal", "distance", "duration"]

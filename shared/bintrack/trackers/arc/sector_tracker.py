@@ -54,7 +54,7 @@ import numpy as np
 
 from bintrack.trackers.arc.arcs import TOL, ArcSet, combine, overlap_matrix, union
 from bintrack.geometry import TWO_PI, normalize_angle
-from bintrack.messages import Deployment, SectorSensor
+from bintrack.deployment_model import Deployment, SectorSensor
 from bintrack.sensing import SectorModel
 from bintrack.trackers.arc.arc_tracker import ArcTracker
 

@@ -38,6 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bintrack.errors import BintrackError
+
 # Phase 1 needs six sensors and three objects (eq. 8: nm ≥ 4(n − 2) + 2 + 2m), a fourth object to
 # choose the root, and on that fourth object more detections than its four unknowns.
 PHASE1_SENSORS = 6
@@ -58,7 +60,7 @@ SOLVE_GTOL = 1e-15
 SOLVE_MAX_NFEV: int | None = None
 
 
-class DegenerateError(ValueError):
+class DegenerateError(BintrackError, ValueError):
     """Input the algorithm cannot solve (paper 003 §3: e.g. the first two objects parallel, all
     beams parallel, sensor positions collinear); the text says which, in one line."""
 

@@ -60,8 +60,9 @@ from bintrack.trackers.laser.adaptive_basis import (
     frame_from_points,
     frame_from_sensors,
 )
-from bintrack.errors import CommandError
-from bintrack.messages import Deployment, LineObjectEstimate, LineSensor, Transition
+from bintrack.errors import TrackerConfigError
+from bintrack.bus_payloads import LineObjectEstimate, Transition
+from bintrack.deployment_model import Deployment, LineSensor
 
 NAME = "adaptive-basis"
 FRAME_RESIDUAL_WARNING = 0.25  # units (ft on the testbed): a frame misfit above this is warned about
@@ -76,7 +77,7 @@ class AdaptiveBasisTracker:
 
     ``phase2``: "lsq" (least-squares optimum of eq. 5 after every pass, default) or "paper"
     (``iterations`` Newton iterations per pass, paper: 5). ``gap`` (s): silence that ends a pass
-    (default: see the module docstring). Raises :class:`CommandError` if the deployment has fewer
+    (default: see the module docstring). Raises :class:`TrackerConfigError` if the deployment has fewer
     than six line sensors or nothing can fix real-world coordinates.
     """
 
@@ -86,16 +87,16 @@ class AdaptiveBasisTracker:
                  phase2: str = "lsq"):
         sensors = [s for s in deployment.sensors if isinstance(s, LineSensor)]
         if not sensors:
-            raise CommandError(f"tracker {NAME} needs line sensors; this deployment has none")
+            raise TrackerConfigError(f"tracker {NAME} needs line sensors; this deployment has none")
         if len(sensors) < PHASE1_SENSORS:
-            raise CommandError(f"tracker {NAME} needs at least {PHASE1_SENSORS} line sensors (paper 003 §4); "
+            raise TrackerConfigError(f"tracker {NAME} needs at least {PHASE1_SENSORS} line sensors (paper 003 §4); "
                                f"this deployment has {len(sensors)}")
         if iterations < 0:
-            raise CommandError(f"tracker {NAME}: iterations must be ≥ 0, got {iterations}")
+            raise TrackerConfigError(f"tracker {NAME}: iterations must be ≥ 0, got {iterations}")
         if phase2 not in PHASE2_METHODS:
-            raise CommandError(f"tracker {NAME}: phase 2 must be one of {', '.join(PHASE2_METHODS)}, got {phase2!r}")
+            raise TrackerConfigError(f"tracker {NAME}: phase 2 must be one of {', '.join(PHASE2_METHODS)}, got {phase2!r}")
         if gap is not None and not (math.isfinite(gap) and gap > 0):
-            raise CommandError(f"tracker {NAME}: gap must be a positive number of seconds, got {gap}")
+            raise TrackerConfigError(f"tracker {NAME}: gap must be a positive number of seconds, got {gap}")
         self.deployment = deployment
         self.ids = [s.id for s in sensors]
         self._index = {sid: k for k, sid in enumerate(self.ids)}
@@ -106,7 +107,7 @@ class AdaptiveBasisTracker:
         self.calibration = list(deployment.calibration.passes) if deployment.calibration else []
         self.frame_plan, self.frame_reason = self._plan_frame()
         if not self.frame_plan:
-            raise CommandError(f"tracker {NAME} cannot place its estimates in real-world coordinates: "
+            raise TrackerConfigError(f"tracker {NAME} cannot place its estimates in real-world coordinates: "
                                f"{self.frame_reason}")
         self.basis = AdaptiveBasis(len(sensors), iterations=iterations, phase2=phase2)
         self.gap_source = "option" if gap is not None else ("calibration" if self.calibration else "learnt")

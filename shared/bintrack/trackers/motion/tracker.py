@@ -2,7 +2,7 @@
 
 * :class:`VelocityPlaneTracker` (``velocity-plane``), :class:`SvmTracker` (``svm``) and
   :class:`PprTracker` (``ppr``): the velocity estimators of paper 002 §III over the periods so
-  far (or the last ``window``), one :class:`~bintrack.messages.VelocityEstimate` per period
+  far (or the last ``window``), one :class:`~bintrack.bus_payloads.VelocityEstimate` per period
   with x, y = None (they give no position);
 * :class:`MotionRandomWalkTracker` (``motion-rw``): the random-walk tracker of paper 002 §IV,
   position and velocity each period.
@@ -38,8 +38,9 @@ from collections import deque
 import numpy as np
 
 from bintrack.trackers.motion.closer_farther import VelocityFit, _unit, ppr_fit, svm_fit, svm_velocity, velocity_plane
-from bintrack.errors import CommandError
-from bintrack.messages import Deployment, MotionSensor, Transition, VelocityEstimate
+from bintrack.errors import TrackerConfigError
+from bintrack.bus_payloads import Transition, VelocityEstimate
+from bintrack.deployment_model import Deployment, MotionSensor
 
 
 class _PeriodTracker:
@@ -52,11 +53,11 @@ class _PeriodTracker:
                  window: int | None = None):
         sensors = [s for s in deployment.sensors if isinstance(s, MotionSensor)]
         if not sensors:
-            raise CommandError(f"tracker {self.name} needs motion (closer/farther) sensors; this deployment has none")
+            raise TrackerConfigError(f"tracker {self.name} needs motion (closer/farther) sensors; this deployment has none")
         if period is not None and not (math.isfinite(period) and period > 0):
-            raise CommandError(f"tracker {self.name}: period must be a positive number of seconds, got {period}")
+            raise TrackerConfigError(f"tracker {self.name}: period must be a positive number of seconds, got {period}")
         if window is not None and window < 1:
-            raise CommandError(f"tracker {self.name}: window must be at least 1 period, got {window}")
+            raise TrackerConfigError(f"tracker {self.name}: window must be at least 1 period, got {window}")
         self.ids = [s.id for s in sensors]
         self.index = {sid: i for i, sid in enumerate(self.ids)}
         self.positions = np.array([(s.x, s.y) for s in sensors], dtype=float)
@@ -229,10 +230,10 @@ class MotionRandomWalkTracker(_PeriodTracker):
                  period: float | None = None, epoch: float = 0.0):
         super().__init__(deployment, period=period, epoch=epoch, window=window)
         if velocity not in VELOCITY_MODELS:
-            raise CommandError(f"tracker {self.name}: velocity must be one of {', '.join(VELOCITY_MODELS)}, got {velocity!r}")
+            raise TrackerConfigError(f"tracker {self.name}: velocity must be one of {', '.join(VELOCITY_MODELS)}, got {velocity!r}")
         self.velocity = velocity
         if n < 2:
-            raise CommandError(f"tracker {self.name}: n must be at least 2 velocity estimates, got {n}")
+            raise TrackerConfigError(f"tracker {self.name}: n must be at least 2 velocity estimates, got {n}")
         self.region = deployment.region
         self.n = n
         self.beta_max = float(beta_max)

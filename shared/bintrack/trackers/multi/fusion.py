@@ -30,8 +30,9 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from bintrack.errors import CommandError
-from bintrack.messages import Deployment, DiskSensor, PositionReport, PositionReports, SectorSensor, Transition
+from bintrack.errors import TrackerConfigError
+from bintrack.bus_payloads import PositionReport, PositionReports, Transition
+from bintrack.deployment_model import Deployment, DiskSensor, SectorSensor
 from bintrack.sensing import reports_presence
 from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.target_fit import Expectation, TargetFit, weighted_report
@@ -49,17 +50,17 @@ class GridFusion:
     def __init__(self, deployment: Deployment, config: FusionConfig = FusionConfig()):
         sensors = [s for s in deployment.sensors if isinstance(s, (DiskSensor, SectorSensor))]
         if not sensors:
-            raise CommandError("fusion needs disk or sector sensors; this deployment has none")
+            raise TrackerConfigError("fusion needs disk or sector sensors; this deployment has none")
         if config.cell is not None and not config.cell > 0:
-            raise CommandError(f"fusion cell size must be positive, got {config.cell}")
+            raise TrackerConfigError(f"fusion cell size must be positive, got {config.cell}")
         if not config.min_gain >= 0:
-            raise CommandError(f"fusion min_gain must be at least 0 nats, got {config.min_gain}")
+            raise TrackerConfigError(f"fusion min_gain must be at least 0 nats, got {config.min_gain}")
         if not config.expected_split_gain >= 0:
-            raise CommandError(f"fusion expected_split_gain must be at least 0 nats, got {config.expected_split_gain}")
+            raise TrackerConfigError(f"fusion expected_split_gain must be at least 0 nats, got {config.expected_split_gain}")
         if not config.shared_edge >= 0:
-            raise CommandError(f"fusion shared_edge must be at least 0 sensing ranges, got {config.shared_edge}")
+            raise TrackerConfigError(f"fusion shared_edge must be at least 0 sensing ranges, got {config.shared_edge}")
         if config.threshold < 1:
-            raise CommandError(f"fusion threshold n_d must be at least 1, got {config.threshold}")
+            raise TrackerConfigError(f"fusion threshold n_d must be at least 1, got {config.threshold}")
         self.config = config
         self.shared_speed = config.shared_speed / deployment.metres_per_unit
         """``config.shared_speed`` in the deployment's units per second"""
@@ -235,7 +236,7 @@ def scan_period(deployment: Deployment, config: FusionConfig) -> float:
     """The scan period, s: ``config.scan``, else the sensors' longest sampling period, else 0.5 s."""
     if config.scan is not None:
         if not config.scan > 0:
-            raise CommandError(f"scan period must be positive, got {config.scan}")
+            raise TrackerConfigError(f"scan period must be positive, got {config.scan}")
         return config.scan
     periods = [s.period for s in deployment.sensors if getattr(s, "period", None)]
     return max(periods) if periods else DEFAULT_SCAN

@@ -23,9 +23,9 @@ from __future__ import annotations
 import statistics
 from dataclasses import replace
 
-from bintrack.messages import Deployment, DiskSensor
+from bintrack.deployment_model import Deployment, DiskSensor
 from bintrack.trackers.multi.fusion_config import FusionConfig
-from bintrack.trackers.multi.mcmcda import MCMCDAConfig
+from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
 
 FOOTPRINT_SIGMAS = 3.0
 PIR_REPORT_PD = 0.6

@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from bintrack.messages import Track, TrackSet
+from bintrack.bus_payloads import Track, TrackSet
 from bintrack.regions import RegionMap
 
 

@@ -69,7 +69,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
-from bintrack.messages import PositionReport
+from bintrack.bus_payloads import PositionReport
 from bintrack.trackers.multi.fusion_config import FusionConfig
 
 # A report's least variance per axis, in cells²: a uniform position in a cell of side h has h²/12.

@@ -13,8 +13,11 @@ from __future__ import annotations
 
 from bintrack.trackers.multi.fusion import Scan, ScanFusion
 from bintrack.trackers.multi.fusion_config import FusionConfig
-from bintrack.trackers.multi.mcmcda import MCMCDAConfig, OnlineMCMCDA
-from bintrack.messages import Deployment, LocalEstimate, Message, PositionReport, PositionReports, Transition
+from bintrack.trackers.multi.mcmcda import OnlineMCMCDA
+from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
+from bintrack.bus_payloads import LocalEstimate, PositionReport, PositionReports, Transition
+from bintrack.deployment_model import Deployment
+from bintrack.message_base import Message
 from bintrack.trackers.base import Tracker
 
 _MIN_ESTIMATE_VARIANCE = 1.0  # m²: an arc of length 0 still has the sensing model's error

@@ -1,0 +1,90 @@
+"""The parameters of online MCMCDA (paper 004 §IV): the model of eq. 3, the Kalman filter, the
+sampler, and the identity policy."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from bintrack.errors import TrackerConfigError
+
+
+@dataclass(frozen=True)
+class MCMCDAConfig:
+    """Parameters of the model (eq. 3, Kalman filter) and of the online sampler.
+
+    Lengths are in the reports' units; the defaults are for metres (people walking through PIR
+    sensors of about 8 m range), and :meth:`in_units` converts them to other units."""
+
+    window: int = 5
+    """sliding-window length, scans"""
+    n_mc: int = 500
+    """Metropolis–Hastings iterations per scan and chain"""
+    chains: int = 4
+    """chains per scan, each of n_mc iterations from the previous MAP; the MAP over them is kept
+    (4 chosen on the tuning half of ``benchmarks/multi_target.py``: fewer identity switches and
+    half the seed spread of one chain; it takes about 4 × one chain's time)"""
+    seed: int = 0
+    """seed of the sampler's random stream"""
+    process_noise: float = 0.02
+    """q: white-acceleration spectral density of the constant-velocity model, units²/s³ (0.02
+    chosen on the tuning half of ``benchmarks/multi_target.py``: people walk with few sharp
+    turns; it was 0.1)"""
+    extra_variance: float = 4.0
+    """added to each report's variance per axis, units² (a cluster's spread understates the
+    error of its centre)"""
+    initial_speed: float = 1.5
+    """standard deviation of a new track's velocity per axis, units/s"""
+    pd: float = 0.85
+    """probability that a present target yields a report in a scan"""
+    false_alarm_rate: float = 3e-4
+    """λ_f: false reports per unit area per scan"""
+    birth_rate: float = 1e-4
+    """λ_b: new targets per unit area per scan"""
+    termination: float = 0.05
+    """p_z: probability that a target disappears between scans"""
+    max_speed: float = 3.0
+    """v̄: fastest target, units/s (gates which reports may follow each other in a track)"""
+    gate_sigmas: float = 3.0
+    """added to v̄·Δt in that gate: this many standard deviations of the two positions' noise"""
+    max_misses: int = 3
+    """d̄: consecutive scans a track may go unreported"""
+    stop: float = 0.3
+    """γ: probability that an extension proposal stops after each added report"""
+    min_reports: int = 2
+    """reports a track needs (fixed and in the window) before it is published"""
+    coast: int = 1
+    """scans a published track is predicted past its last report before it is dropped"""
+    reidentify: float = 8.0
+    """s: a new track takes the identity of a track last shown at most this long ago (and
+    before its first report), if that report lies within ``gate_sigmas`` of the old track's
+    prediction"""
+    birth_edge: float | None = None
+    """real PIR: people are born within this distance (units) of ``birth_area``'s edge (the
+    room's doors are on its walls); None: anywhere (the paper's uniform birth)"""
+    birth_area: tuple[float, float, float, float] | None = None
+    """xmin, ymin, xmax, ymax (units) of the room for ``birth_edge``; None: no room"""
+    birth_inside: float = 0.1
+    """λ_b farther than ``birth_edge`` from the edge, as a fraction of λ_b near it"""
+
+    def in_units(self, metres_per_unit: float) -> MCMCDAConfig:
+        """This configuration, read as metres and seconds, in units of ``metres_per_unit`` m:
+        speeds and the report variance scale by 1/metres_per_unit (squared for variances and
+        q), and the rates per unit area by metres_per_unit²."""
+        k = 1.0 / metres_per_unit
+        return replace(self, process_noise=self.process_noise * k * k, extra_variance=self.extra_variance * k * k,
+                       initial_speed=self.initial_speed * k, max_speed=self.max_speed * k,
+                       false_alarm_rate=self.false_alarm_rate / (k * k), birth_rate=self.birth_rate / (k * k),
+                       birth_edge=None if self.birth_edge is None else self.birth_edge * k,
+                       birth_area=None if self.birth_area is None else tuple(v * k for v in self.birth_area))
+
+    def __post_init__(self):
+        checks = [("window", self.window >= 2), ("n_mc", self.n_mc >= 1), ("chains", self.chains >= 1), ("max_misses", self.max_misses >= 0),
+                  ("pd", 0 < self.pd < 1), ("termination", 0 < self.termination < 1), ("stop", 0 < self.stop < 1),
+                  ("false_alarm_rate", self.false_alarm_rate > 0), ("birth_rate", self.birth_rate > 0),
+                  ("max_speed", self.max_speed > 0), ("initial_speed", self.initial_speed > 0),
+                  ("process_noise", self.process_noise > 0), ("extra_variance", self.extra_variance >= 0),
+                  ("gate_sigmas", self.gate_sigmas > 0), ("coast", self.coast >= 0), ("reidentify", self.reidentify >= 0), ("min_reports", self.min_reports >= 2)]
+        bad = [name for name, ok in checks if not ok]
+        if bad:
+            raise TrackerConfigError(f"MCMCDA parameter out of range: {', '.join(f'{n}={getattr(self, n)}' for n in bad)}")
+

@@ -1,0 +1,188 @@
+"""The sliding window of online MCMCDA (paper 004 §IV; Oh et al. §IV-C): its reports, the tracks
+of the chain's state, the anchors that fix a track's reports once they leave the window, and the
+gates that say which reports may follow which in a track.
+
+Each scan the window slides; reports that leave it are fixed with their track: the track's
+filtered state becomes its *anchor*, from which the track continues inside the window, and whose
+identity it keeps.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from bintrack.trackers.multi.kalman_model import kf_predict, kf_update
+
+
+@dataclass
+class Anchor:
+    """The fixed part of a track: its identity and per-axis filtered state at its last fixed report."""
+
+    identity: int
+    scan: int
+    t: float
+    x: tuple[float, float, float, float, float]  # p, v, P_pp, P_pv, P_vv of axis x
+    y: tuple[float, float, float, float, float]
+    reports: int
+
+
+@dataclass(slots=True)
+class WindowReport:
+    scan: int
+    t: float
+    x: float
+    y: float
+    rx: float
+    ry: float
+    shared: bool = False
+
+
+
+class Gate:
+    """The window's reports that may follow one report or anchor in a track (``_follows``):
+    ``at[k]`` those of scan k in report order, ``all`` all of them. Which reports may follow
+    which depends only on the two and the configuration, so the chain looks it up here."""
+
+    __slots__ = ("scan", "at", "all")
+
+    def __init__(self, scan: int):
+        self.scan = scan
+        self.at: dict[int, list[int]] = {}
+        self.all: set[int] = set()
+
+    def add(self, scan: int, rids: list[int]) -> None:
+        if rids:
+            self.at[scan] = rids
+            self.all.update(rids)
+
+
+
+@dataclass(slots=True)
+class ChainTrack:
+    reports: tuple[int, ...]
+    anchor: Anchor | None = None
+    label: int | None = None
+
+
+
+class ScanWindow:
+    """The window's part of :class:`~bintrack.trackers.multi.mcmcda.OnlineMCMCDA`: fixing the
+    reports that leave it, dropping the tracks that end, a track's filter, and the gates.
+
+    It works on the sampler's state: ``config``, ``_scan`` (the current scan), ``_scans``
+    (scan, t, report ids) of the window, ``_reports``, ``_gates``, ``_tracks`` and, while a
+    chain runs, ``_anchor_gates``."""
+
+    def _fix_oldest(self) -> None:
+        k, t, ids = self._scans.popleft()
+        gone = set(ids)
+        for track in self._tracks:
+            fixed = [r for r in track.reports if r in gone]
+            if not fixed:
+                continue
+            rid = fixed[0]
+            rep = self._reports[rid]
+            if track.label is None:
+                track.label = self._new_identity()
+            if track.anchor is None:
+                ax, ay = self._initial(rep)
+                track.anchor = Anchor(track.label, k, t, ax, ay, 1)
+            else:
+                a = track.anchor
+                sx, sy, _ = self._advance(a.x, a.y, a.t, rep)
+                track.anchor = Anchor(a.identity, k, t, sx, sy, a.reports + 1)
+            track.reports = tuple(r for r in track.reports if r != rid)
+        for rid in ids:
+            del self._reports[rid]
+            del self._gates[rid]
+            self._owner.pop(rid, None)
+
+    def _expire_anchors(self) -> None:
+        keep = []
+        for track in self._tracks:
+            if not track.reports and (track.anchor is None or self._scan - track.anchor.scan > self.config.max_misses + 1):
+                continue
+            if track.anchor is None and len(track.reports) < 2:
+                continue
+            keep.append(track)
+        self._tracks = keep
+
+    def _initial(self, rep: WindowReport):
+        v0 = self.config.initial_speed ** 2
+        return (rep.x, 0.0, rep.rx, 0.0, v0), (rep.y, 0.0, rep.ry, 0.0, v0)
+
+    # ------------------------------------------------------------------ scoring
+
+    def _advance(self, sx, sy, t: float, rep: WindowReport):
+        """Predict the per-axis states from time ``t`` (s) to ``rep``'s and update them with it:
+        (state x, state y, log-likelihood of the innovations)."""
+        q = self.config.process_noise
+        sx, lx = kf_update(kf_predict(sx, rep.t - t, q), rep.x, rep.rx)
+        sy, ly = kf_update(kf_predict(sy, rep.t - t, q), rep.y, rep.ry)
+        return sx, sy, lx + ly
+
+    def _start(self, track: ChainTrack):
+        """The track's filter before its remaining window reports: (state x, state y, scan and
+        time of the last report taken, reports taken, reports still to take)."""
+        reps = [self._reports[r] for r in track.reports]
+        if track.anchor is not None:
+            a = track.anchor
+            return a.x, a.y, a.scan, a.t, a.reports, reps
+        sx, sy = self._initial(reps[0])
+        return sx, sy, reps[0].scan, reps[0].t, 1, reps[1:]
+
+
+    # ------------------------------------------------------------------ gate
+
+    def _follows(self, a_scan: int, a_t: float, ax: float, ay: float, a_var: float, rid: int) -> bool:
+        rep = self._reports[rid]
+        gap = rep.scan - a_scan
+        if gap < 1 or gap > self.config.max_misses + 1:
+            return False
+        reach = self.config.max_speed * (rep.t - a_t) + self.config.gate_sigmas * math.sqrt(a_var + max(rep.rx, rep.ry))
+        return (rep.x - ax) ** 2 + (rep.y - ay) ** 2 <= reach * reach
+
+    def _add_gates(self, ids: list[int]) -> None:
+        """Gates for the new scan's reports ``ids``, which join the gates of the reports they may follow."""
+        for rid, gate in self._gates.items():
+            rep = self._reports[rid]
+            gate.add(self._scan, [r for r in ids if self._follows(rep.scan, rep.t, rep.x, rep.y, max(rep.rx, rep.ry), r)])
+        for rid in ids:
+            self._gates[rid] = Gate(self._scan)
+
+    def _anchor_gate(self, a: Anchor) -> Gate:
+        gate = Gate(a.scan)
+        end = (a.scan, a.t, a.x[0], a.y[0], max(a.x[2], a.y[2]))
+        for k, _, ids in self._scans:
+            gate.add(k, [r for r in ids if self._follows(*end, r)])
+        return gate
+
+    def _gate(self, track: ChainTrack) -> Gate:
+        """The gate of the track's last report, or of its anchor if it has none."""
+        if track.reports:
+            return self._gates[track.reports[-1]]
+        return self._anchor_gates[id(track.anchor)]
+
+    def _end_of(self, track: ChainTrack) -> tuple[int, float, float, float, float] | None:
+        """(scan, t, x, y, position variance) of the track's last report or anchor."""
+        if track.reports:
+            rep = self._reports[track.reports[-1]]
+            return rep.scan, rep.t, rep.x, rep.y, max(rep.rx, rep.ry)
+        if track.anchor is not None:
+            a = track.anchor
+            return a.scan, a.t, a.x[0], a.y[0], max(a.x[2], a.y[2])
+        return None
+
+    def _valid(self, track: ChainTrack) -> bool:
+        if track.anchor is None:
+            if len(track.reports) < 2:
+                return False
+            gate, rest = self._gates[track.reports[0]], track.reports[1:]
+        else:
+            gate, rest = self._anchor_gates[id(track.anchor)], track.reports
+        for rid in rest:
+            if rid not in gate.all:
+                return False
+            gate = self._gates[rid]
+        return True
