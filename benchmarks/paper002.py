@@ -75,7 +75,9 @@ def _angle(a: float, b: float) -> float:
 
 def estimator_runs(job: tuple[int, list[int]]) -> tuple[int, dict[str, list[tuple[float, float] | None]]]:
     """Part 1 for one N and some seeds: per estimator, (heading error rad, speed error m/s) or None."""
-    from bintrack.trackers.motion.closer_farther import ppr_fit, svm_velocity, velocity_plane
+    from bintrack.trackers.motion.ppr_estimator import ppr_fit
+    from bintrack.trackers.motion.svm_estimator import svm_velocity
+    from bintrack.trackers.motion.velocity_plane import velocity_plane
     from bintrack.sim.scenarios import build_scenario
 
     nodes, seeds = job
@@ -418,7 +420,8 @@ def plot_staircase(out: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from bintrack.trackers.motion.closer_farther import counters, velocity_plane
+    from bintrack.trackers.motion.closer_farther import counters
+    from bintrack.trackers.motion.velocity_plane import velocity_plane
     from bintrack.sim.scenarios import build_scenario
 
     scenario = build_scenario("motion", 0, nodes=100, trajectory="constant", speed=SPEED, duration=DURATION,

@@ -30,14 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
-from bintrack.trackers.laser.adaptive_basis import (
-    AdaptiveBasis,
-    DegenerateError,
-    border_times,
-    frame_from_points,
-    parameter_error,
-    passage_scene,
-)
+from bintrack.evaluation.parameter_error import parameter_error
+from bintrack.sim.passage_scene import passage_scene
+from bintrack.trackers.laser.adaptive_basis import AdaptiveBasis
+from bintrack.trackers.laser.line_model import DegenerateError, border_times
+from bintrack.trackers.laser.phase3_frame import frame_from_points
 from bintrack.evaluation.metrics import mean_ci
 
 SUCCESS_JP = 1e-8

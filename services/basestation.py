@@ -95,7 +95,11 @@ class Basestation(TransitionConsumer):
         problem = estimate_problem(estimate, key, self.keys, self.nodes, self.args.estimates)
         if problem:
             self.bad.report(key, problem)
-        elif not self.driver.tracker.add_estimate(estimate):
+            return
+        tracker = self.driver.tracker
+        late = tracker.late_estimates
+        tracker.update(estimate)  # it joins the reports of its scan: no output until that scan
+        if tracker.late_estimates > late:
             self.bad.report(key, f"late: estimate at t={estimate.t} is behind the scans already tracked")
 
     def emit(self, outputs: list[Message]) -> None:

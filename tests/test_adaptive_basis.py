@@ -8,18 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from bintrack.trackers.laser.adaptive_basis import (
-    AdaptiveBasis,
-    DegenerateError,
-    Frame,
-    border_times,
-    closed_form,
-    collinear,
-    frame_from_points,
-    frame_from_sensors,
-    parameter_error,
-    passage_scene,
-)
+from bintrack.evaluation.parameter_error import parameter_error
+from bintrack.sim.passage_scene import passage_scene
+from bintrack.trackers.laser.adaptive_basis import AdaptiveBasis
+from bintrack.trackers.laser.line_model import DegenerateError, border_times
+from bintrack.trackers.laser.phase1_closed_form import closed_form
+from bintrack.trackers.laser.phase3_frame import Frame, collinear, frame_from_points, frame_from_sensors
 from bintrack.errors import TrackerConfigError
 from bintrack.formats import ObjectRow, open_dataset
 from bintrack.bus_payloads import LineObjectEstimate

@@ -383,3 +383,39 @@ def test_a_chain_whose_births_cannot_continue_draws_what_running_it_would(monkey
     assert fast_states == slow_states
     assert fast_out == slow_out
     assert tracker._tracks  # the last two reports, 1 m apart, did begin a track
+
+
+def test_peer_estimates_given_to_update_join_the_reports_as_the_offline_peer_does():
+    # live, the base station hands each peer estimate to the tracker's update(); offline the
+    # tracker runs the peer itself: the same estimates in the same order give the same output
+    from bintrack.bus_payloads import LocalEstimate
+    from bintrack.transition_detector import TransitionDetector
+
+    dataset = open_dataset(REPO / "tests" / "data" / "checkpoint-before-moves")
+    deployment = dataset.deployment
+    offline = make_tracker("mcmcda", deployment, TrackerOptions(estimates="arc", n_mc=100))
+    live = make_tracker("mcmcda", deployment, TrackerOptions(n_mc=100))
+    peer = make_tracker("arc", deployment)
+    detector = TransitionDetector(deployment)
+    expected, got, estimates = [], [], 0
+    for event in dataset.events():
+        transition = detector.update(event)
+        if transition is None:
+            continue
+        expected += offline.update(transition)
+        for estimate in peer.update(transition):
+            estimates += 1
+            assert live.update(estimate) == []
+        got += live.update(transition)
+    for estimate in peer.flush(math.inf):
+        live.update(estimate)
+    expected += offline.flush(math.inf)
+    got += live.flush(math.inf)
+    assert estimates > 10 and len(expected) > 10 and got == expected
+    plain = make_tracker("mcmcda", deployment, TrackerOptions(n_mc=100))
+    without = [o for o in run_tracker(dataset, plain) if isinstance(o, PositionReports)]
+    reports = [o for o in got if isinstance(o, PositionReports)]
+    assert sum(len(o.reports) for o in reports) > sum(len(o.reports) for o in without)  # the estimates joined
+    assert live.late_estimates == 0
+    late = LocalEstimate(t=0.0, node=deployment.sensors[0].id, tracker="arc", x=1.0, y=1.0)
+    assert live.update(late) == [] and live.late_estimates == 1  # its scan was tracked long ago

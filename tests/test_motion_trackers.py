@@ -7,14 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from bintrack.trackers.motion.closer_farther import (
-    counters,
-    ppr_direction,
-    ppr_fit,
-    svm_fit,
-    svm_velocity,
-    velocity_plane,
-)
+from bintrack.trackers.motion.closer_farther import counters
+from bintrack.trackers.motion.ppr_estimator import ppr_direction, ppr_fit
+from bintrack.trackers.motion.svm_estimator import svm_fit, svm_velocity
+from bintrack.trackers.motion.velocity_plane import velocity_plane
 from bintrack.errors import TrackerConfigError
 from bintrack.bus_payloads import Transition, VelocityEstimate
 from bintrack.deployment_model import Deployment, MotionSensor, Region
@@ -28,6 +24,7 @@ from bintrack.trackers.motion.tracker import (
     VelocityPlaneTracker,
 )
 from bintrack.transition_detector import TransitionDetector
+from svm_reference import svm_fit_qp
 
 
 def _angle_error(a: float, b: float) -> float:
@@ -146,8 +143,7 @@ def test_svm_single_period_known_geometry():
     # +1 on x ≥ 1, −1 on x ≤ −1: the maximum-margin line is x = 0 with w = (1, 0), margin 1
     positions = np.array([[1.0, 0.0], [1.0, 3.0], [4.0, -2.0], [-1.0, 1.0], [-1.0, -4.0], [-3.0, 2.0]])
     labels = np.array([[1, 1, 1, -1, -1, -1]])
-    for solver in ("auto", "qp"):
-        fit = svm_fit(positions, labels, solver=solver)
+    for fit in (svm_fit(positions, labels), svm_fit_qp(positions, labels)):
         assert fit.separable
         np.testing.assert_allclose(fit.w, [1.0, 0.0], atol=1e-6)
         np.testing.assert_allclose(fit.b, [0.0], atol=1e-6)
@@ -171,7 +167,7 @@ def test_svm_two_periods_speed_from_distance_between_lines():
 
 def test_svm_multi_period_solvers_agree():
     positions, labels, _, _ = _labels(4, 40, duration=8.0)
-    auto, qp = svm_fit(positions, labels), svm_fit(positions, labels, solver="qp")
+    auto, qp = svm_fit(positions, labels), svm_fit_qp(positions, labels)
     assert auto.separable and qp.separable
     assert math.degrees(_angle_error(auto.heading, qp.heading)) < 1e-3
     assert auto.margin == pytest.approx(qp.margin, rel=1e-4)
@@ -185,7 +181,7 @@ def test_svm_soft_margin_non_separable_stays_sensible():
     near = np.argsort(np.abs(positions @ u - 200))[:3]
     labels[0, near] *= -1  # three wrong reports near the line: not separable any more
     auto = svm_fit(positions, labels, c=10.0)
-    qp = svm_fit(positions, labels, c=10.0, solver="qp")
+    qp = svm_fit_qp(positions, labels, c=10.0)
     assert not auto.separable and not qp.separable
     assert math.degrees(_angle_error(auto.heading, 0.7)) < 10.0
     assert math.degrees(_angle_error(auto.heading, qp.heading)) < 1e-3

@@ -23,6 +23,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from bintrack.errors import BintrackError
+from bintrack.live.moved_classes import CheckpointUnpickler
+
 if TYPE_CHECKING:
     from bintrack.live.gap_repair import IntakeState
     from bintrack.bus_payloads import TrackSet
@@ -34,8 +37,6 @@ CHECKPOINT_INTERVAL = 1.0  # s of wall clock between two throttled checkpoints â
 CHECKPOINT_SPAN = 8.0  # â€¦ or s of event time, whichever comes first (well inside the sensors' HISTORY_SPAN)
 
 log = logging.getLogger("bintrack")
-
-from bintrack.errors import BintrackError
 
 
 class CheckpointRefused(BintrackError):
@@ -56,7 +57,9 @@ def load_checkpoint(path: str):
     """The object saved at ``path``, or None if there is no file there.
 
     Raises :class:`CheckpointRefused` if the file or its folder is not the user's own and
-    private to writes, or if it cannot be read back (truncated, from another version).
+    private to writes, or if it cannot be read back (truncated, from another version). Classes
+    that moved since the checkpoint was taken are found at their new homes
+    (:mod:`bintrack.live.moved_classes`).
     """
     if not os.path.exists(path):
         return None
@@ -65,7 +68,7 @@ def load_checkpoint(path: str):
         raise CheckpointRefused(f"not loaded: {reason}")
     try:
         with open(path, "rb") as handle:
-            return pickle.load(handle)
+            return CheckpointUnpickler(handle).load()
     except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError, ValueError) as exc:
         raise CheckpointRefused(f"unreadable ({type(exc).__name__}: {exc})") from exc
 

@@ -2,15 +2,32 @@
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, Union
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from bintrack.bus_payloads import LocalEstimate, Transition
+from bintrack.bus_payloads import (
+    LineObjectEstimate,
+    LocalEstimate,
+    PositionReports,
+    TrackSet,
+    Transition,
+    VelocityEstimate,
+)
 from bintrack.deployment_model import Deployment, DiskSensor, SectorSensor
 from bintrack.errors import TrackerConfigError
 from bintrack.sensing import reports_presence
+
+
+TrackerInput = Union[Transition, LocalEstimate]
+"""What a tracker takes: the network's transitions, and a fusing tracker (mcmcda with peer
+estimates) also the peer agents' estimates."""
+
+TrackerOutput = Union[LocalEstimate, PositionReports, TrackSet, LineObjectEstimate, VelocityEstimate]
+"""What trackers give: a peer tracker ``LocalEstimate``s; at the base station mcmcda
+``PositionReports`` and ``TrackSet``s, adaptive-basis ``LineObjectEstimate``s, the motion
+trackers ``VelocityEstimate``s."""
 
 
 class Tracker(Protocol):
@@ -18,10 +35,11 @@ class Tracker(Protocol):
 
     name: str
 
-    def update(self, transition: Transition) -> list[LocalEstimate]:
-        """Take one transition (in event-time order) and return the estimates it causes."""
+    def update(self, message: TrackerInput) -> list[TrackerOutput]:
+        """Take one message in event-time order and return the outputs it causes. Every tracker
+        takes transitions; only a tracker that fuses peer estimates is given ``LocalEstimate``s."""
 
-    def flush(self, t: float) -> list[LocalEstimate]:
+    def flush(self, t: float) -> list[TrackerOutput]:
         """No more transitions at or before event time ``t`` (s) will come: return what is pending."""
 
 

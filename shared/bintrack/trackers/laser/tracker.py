@@ -49,17 +49,10 @@ import math
 
 import numpy as np
 
-from bintrack.trackers.laser.adaptive_basis import (
-    PHASE1_SENSORS,
-    PHASE2_METHODS,
-    AdaptiveBasis,
-    DegenerateError,
-    Frame,
-    border_times,
-    collinear,
-    frame_from_points,
-    frame_from_sensors,
-)
+from bintrack.trackers.laser.adaptive_basis import PHASE2_METHODS, AdaptiveBasis
+from bintrack.trackers.laser.line_model import DegenerateError, border_times
+from bintrack.trackers.laser.phase1_closed_form import PHASE1_SENSORS
+from bintrack.trackers.laser.phase3_frame import Frame, collinear, frame_from_points, frame_from_sensors
 from bintrack.errors import TrackerConfigError
 from bintrack.bus_payloads import LineObjectEstimate, Transition
 from bintrack.deployment_model import Deployment, LineSensor

@@ -37,7 +37,10 @@ from collections import deque
 
 import numpy as np
 
-from bintrack.trackers.motion.closer_farther import VelocityFit, _unit, ppr_fit, svm_fit, svm_velocity, velocity_plane
+from bintrack.trackers.motion.closer_farther import VelocityFit, unit_vector
+from bintrack.trackers.motion.ppr_estimator import ppr_fit
+from bintrack.trackers.motion.svm_estimator import svm_fit, svm_velocity
+from bintrack.trackers.motion.velocity_plane import velocity_plane
 from bintrack.errors import TrackerConfigError
 from bintrack.bus_payloads import Transition, VelocityEstimate
 from bintrack.deployment_model import Deployment, MotionSensor
@@ -252,7 +255,7 @@ class MotionRandomWalkTracker(_PeriodTracker):
         result = svm_fit(self.positions, rows, self.c)
         if result is None:
             return None
-        return _unit(result.heading)
+        return unit_vector(result.heading)
 
     def _band(self, status: np.ndarray, u: np.ndarray) -> tuple[float, float]:
         """(a, b): the target's projection on u lies in [a, b] (−inf/inf when a class is empty)."""

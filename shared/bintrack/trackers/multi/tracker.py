@@ -15,10 +15,9 @@ from bintrack.trackers.multi.fusion import Scan, ScanFusion
 from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.mcmcda import OnlineMCMCDA
 from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
-from bintrack.bus_payloads import LocalEstimate, PositionReport, PositionReports, Transition
+from bintrack.bus_payloads import LocalEstimate, PositionReport, PositionReports, TrackSet, Transition
 from bintrack.deployment_model import Deployment
-from bintrack.message_base import Message
-from bintrack.trackers.base import Tracker
+from bintrack.trackers.base import Tracker, TrackerOutput
 
 _MIN_ESTIMATE_VARIANCE = 1.0  # m²: an arc of length 0 still has the sensing model's error
 
@@ -33,7 +32,9 @@ class MCMCDATracker:
     described in feet is tracked as the same field in metres.
 
     ``peer``: a peer tracker run on the same transitions whose estimates join the reports
-    (offline); live, the base station hands the peers' estimates to :meth:`add_estimate`.
+    (offline); live, the base station hands the peers' estimates to :meth:`update`. An estimate
+    whose scan was already tracked, or of a node that is not a range sensor, is not taken and
+    counted in ``late_estimates``.
     """
 
     name = "mcmcda"
@@ -49,39 +50,44 @@ class MCMCDATracker:
         self._pending: dict[int, list[tuple[float, str, PositionReport]]] = {}
         self.late_estimates = 0
 
-    def update(self, transition: Transition) -> list[Message]:
+    def update(self, message: Transition | LocalEstimate) -> list[PositionReports | TrackSet]:
+        """A transition: the scans it completes, fused and tracked. A peer's estimate: a report
+        of its scan, when that scan is tracked (no output now)."""
+        if isinstance(message, LocalEstimate):
+            self._add_estimate(message)
+            return []
         if self.peer is not None:
-            self._take(self.peer.update(transition))
-        return self._track(self.fusion.update(transition))
+            self._take(self.peer.update(message))
+        return self._track(self.fusion.update(message))
 
-    def flush(self, t: float) -> list[Message]:
+    def flush(self, t: float) -> list[PositionReports | TrackSet]:
         if self.peer is not None:
             self._take(self.peer.flush(t))
         return self._track(self.fusion.flush(t))
 
-    def add_estimate(self, estimate: LocalEstimate) -> bool:
-        """Make ``estimate`` a report of the first scan at or after its time; False (and not
-        taken) when that scan was already processed or the node is not a range sensor."""
+    def _add_estimate(self, estimate: LocalEstimate) -> None:
+        """Make ``estimate`` a report of the first scan at or after its time; counted in
+        ``late_estimates`` (and not taken) when that scan was already processed or the node is
+        not a range sensor."""
         sensing_range = self._ranges.get(estimate.node)
         scan = self.fusion.scan_of(estimate.t)
         if sensing_range is None or scan < self.fusion.next_scan():
             self.late_estimates += 1
-            return False
+            return
         if estimate.arc is not None:
             variance = max((sensing_range * estimate.arc) ** 2 / 12.0, self._min_estimate_variance)
         else:
             variance = sensing_range ** 2 / 4.0
         report = PositionReport(x=estimate.x, y=estimate.y, cov=((variance, 0.0), (0.0, variance)))
         self._pending.setdefault(scan, []).append((estimate.t, estimate.node, report))
-        return True
 
-    def _take(self, outputs: list[Message]) -> None:
+    def _take(self, outputs: list[TrackerOutput]) -> None:
         for out in outputs:
             if isinstance(out, LocalEstimate):
-                self.add_estimate(out)
+                self._add_estimate(out)
 
-    def _track(self, scans: list[Scan]) -> list[Message]:
-        out: list[Message] = []
+    def _track(self, scans: list[Scan]) -> list[PositionReports | TrackSet]:
+        out: list[PositionReports | TrackSet] = []
         for snapshot in scans:
             expected = self.mcmcda.expected(snapshot.t) if self._track_aided else ()
             scan = self.fusion.fuse(snapshot, expected)

@@ -1,0 +1,77 @@
+"""A checkpoint taken before the trackers and the messages were split into one module per concept
+still loads (:mod:`bintrack.live.moved_classes`), and its trackers go on exactly as trackers
+run from the start.
+
+``data/checkpoint-before-moves/drivers.pickle.gz`` was pickled by that older version (commit
+a614eb7): per tracker, ``{"events": n, "detector": TransitionDetector, "driver": TrackerDriver}``
+after the first n events of its dataset, run as ``bintrack track`` runs them — mcmcda with the
+arc tracker's estimates (``n_mc`` 100) on a small simulated grid kept beside it (``bintrack
+simulate darpa-grid --grid 4 --people 2 --duration 60 --seed 3``), and adaptive-basis on the
+shipped laser testbed.
+"""
+
+from __future__ import annotations
+
+import gzip
+import os
+from pathlib import Path
+
+import pytest
+
+from bintrack.formats import open_dataset
+from bintrack.live.checkpoint import load_checkpoint
+from bintrack.pipeline import TrackerDriver
+from bintrack.trackers import TrackerOptions, make_tracker
+from bintrack.trackers.laser.phase3_frame import Frame
+from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
+from bintrack.trackers.multi.mcmcda_window import ChainTrack
+from bintrack.transition_detector import TransitionDetector
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO / "tests" / "data" / "checkpoint-before-moves"
+CASES = {
+    "mcmcda": (DATA, TrackerOptions(estimates="arc", n_mc=100)),
+    "adaptive-basis": (REPO / "datasets" / "laser-testbed", TrackerOptions()),
+}
+
+
+def _feed(detector, driver, events) -> list:
+    out = []
+    for event in events:
+        transition = detector.update(event)
+        if transition is not None:
+            out += driver.advance(transition.t)
+            driver.push(transition)
+    return out
+
+
+@pytest.fixture(scope="module")
+def old_checkpoint(tmp_path_factory) -> dict:
+    folder = tmp_path_factory.mktemp("state")
+    os.chmod(folder, 0o700)
+    path = folder / "basestation-old.pickle"
+    path.write_bytes(gzip.decompress((DATA / "drivers.pickle.gz").read_bytes()))
+    os.chmod(path, 0o600)
+    return load_checkpoint(str(path))
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_a_checkpoint_of_the_version_before_the_moves_resumes_exactly(old_checkpoint, name):
+    saved = old_checkpoint[name]
+    folder, options = CASES[name]
+    dataset = open_dataset(folder)
+    events = list(dataset.events())
+    n = saved["events"]
+    assert 0 < n < len(events)
+    detector, driver = TransitionDetector(dataset.deployment), TrackerDriver(make_tracker(name, dataset.deployment, options))
+    _feed(detector, driver, events[:n])
+    expected = _feed(detector, driver, events[n:]) + driver.finish()
+    resumed = _feed(saved["detector"], saved["driver"], events[n:]) + saved["driver"].finish()
+    assert len(expected) > 5 and resumed == expected
+
+
+def test_the_old_classes_are_found_at_their_new_homes(old_checkpoint):
+    mcmcda = old_checkpoint["mcmcda"]["driver"].tracker.mcmcda
+    assert type(mcmcda.config) is MCMCDAConfig
+    assert mcmcda._tracks and all(type(t) is ChainTrack for t in mcmcda._tracks)
+    assert type(old_checkpoint["adaptive-basis"]["driver"].tracker.frame) is Frame
