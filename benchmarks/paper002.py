@@ -21,7 +21,7 @@ field, every sensor reporting ±1 each period P = 1 s.
 
 Per run the work is pure numpy: the label matrix (K periods × N sensors) is computed from the
 scenario's trajectory exactly as the simulator's motion model does (sign of (s − x)·v at the
-sample times), and the estimators of ``bintrack.trackers.motion.closer_farther`` run on it; Part 2 and the
+sample times), and the estimators of ``bintrack.trackers.motion`` run on it; Part 2 and the
 acceptance feed the trackers transitions made from the same labels (the acceptance through the
 simulator's events and the offline driver). Progress goes to stderr.
 

@@ -14,6 +14,7 @@ from bintrack.formats import open_dataset
 from bintrack.pipeline import run_tracker
 from bintrack.trackers import make_tracker
 from bintrack.trackers.multi import target_fit
+from bintrack.trackers.multi.fit_scan import FitScan
 from bintrack.trackers.multi.fusion import GridFusion
 from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.mcmcda import OnlineMCMCDA
@@ -21,7 +22,7 @@ from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
 from bintrack.bus_payloads import PositionReport, PositionReports, TrackSet
 from bintrack.deployment_model import Deployment, DiskSensor, Region
 from support import DATASETS
-from bintrack.trackers.multi.target_fit import Expectation
+from bintrack.trackers.multi.track_expectation import Expectation
 
 from test_mcmcda import detecting_near, grid_deployment
 
@@ -160,7 +161,7 @@ def test_two_tracks_whose_people_share_detections_each_keep_a_target():
         assert any(near(r, x, y, 2.5) for r in reports)
 
 
-class _WholeGrid(target_fit._Scan):
+class _WholeGrid(FitScan):
     """The fit with every gain recomputed over the whole grid from the targets' cells by
     scipy's ``cover @ weights`` (how it was computed before gains were kept per cell and
     updated only where a sensor changes)."""
@@ -169,9 +170,9 @@ class _WholeGrid(target_fit._Scan):
         covered = np.zeros(len(self.weight) - 1, dtype=bool)  # the last weight pads TargetFit.sums
         for i, target in enumerate(self.targets):
             if i != k:
-                covered[self.fit._sensors_of[target.cell]] = True
+                covered[self.fit.sensors_of[target.cell]] = True
         for c in extra:
-            covered[self.fit._sensors_of[c]] = True
+            covered[self.fit.sensors_of[c]] = True
         return self.grid.cover @ (self.weight[:-1] * ~covered)
 
     def _recount(self, remove, add) -> None:
@@ -199,7 +200,7 @@ def _tracks(folder: Path) -> list[tuple]:
 def test_local_gain_updates_give_the_whole_grid_fit_exactly(name, monkeypatch):
     folder = DATASETS / name
     local = _tracks(folder)
-    monkeypatch.setattr(target_fit, "_Scan", _WholeGrid)
+    monkeypatch.setattr(target_fit, "FitScan", _WholeGrid)
     whole = _tracks(folder)
     assert len(local) > 50 and local == whole  # bit for bit: the same sums over the same sensors
 

@@ -18,6 +18,7 @@ MOVED: dict[str, tuple[str, ...]] = {
         "bintrack.trackers.laser.phase1_closed_form", "bintrack.trackers.laser.phase2_least_squares",
         "bintrack.trackers.laser.phase3_frame"),
     "bintrack.trackers.motion.closer_farther": ("bintrack.trackers.motion.svm_estimator",),
+    "bintrack.trackers.multi.target_fit": ("bintrack.trackers.multi.track_expectation",),
 }
 """old module -> the modules its classes went to"""
 

@@ -28,7 +28,6 @@ def _isotonic_sse(count: np.ndarray, projections: np.ndarray) -> np.ndarray:
     return sse
 
 
-
 def _middle_of_best_run(angles: np.ndarray, best: np.ndarray, widths: np.ndarray) -> float:
     """Middle angle (rad) of the longest circular run of consecutive ``best`` intervals; interval
     m is centred at ``angles[m]`` with width ``widths[m]`` (angles sorted, covering the circle

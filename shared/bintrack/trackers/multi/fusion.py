@@ -35,7 +35,9 @@ from bintrack.bus_payloads import PositionReport, PositionReports, Transition
 from bintrack.deployment_model import Deployment, DiskSensor, SectorSensor
 from bintrack.sensing import reports_presence
 from bintrack.trackers.multi.fusion_config import FusionConfig
-from bintrack.trackers.multi.target_fit import Expectation, TargetFit, weighted_report
+from bintrack.trackers.multi.fit_scan import weighted_report
+from bintrack.trackers.multi.target_fit import TargetFit
+from bintrack.trackers.multi.track_expectation import Expectation
 
 DEFAULT_SCAN = 0.5  # s, when the sensors are event-driven (no sampling period)
 

@@ -76,7 +76,6 @@ class OnlineMCMCDA(ScanWindow, ChainMoves, TrackIdentity):
         """For a checkpoint: the tracker without the chain's scratch tables."""
         return {k: v for k, v in self.__dict__.items() if k not in self._SCRATCH}
 
-
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         upgrade_checkpoint(self)
@@ -107,7 +106,6 @@ class OnlineMCMCDA(ScanWindow, ChainMoves, TrackIdentity):
             if track.label is not None:
                 self._owner.update(dict.fromkeys(track.reports, track.label))
         return published
-
 
     # ------------------------------------------------------------------ scoring
 

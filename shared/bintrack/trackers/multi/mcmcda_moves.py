@@ -34,7 +34,6 @@ def below(rng: random.Random, n: int) -> int:
     return r
 
 
-
 class ChainMoves:
     """The moves' part of :class:`~bintrack.trackers.multi.mcmcda.OnlineMCMCDA`. A move takes
     the chain's state (``tracks``, the ``free`` reports) and returns None or (indices of the
@@ -107,7 +106,6 @@ class ChainMoves:
             out = self._now["starts"] = sorted(free.difference(self._latest))
         return out
 
-
     def _continuable(self, gate: Gate, free) -> bool:
         """Whether ``_extend`` from ``gate`` finds a free report at some gap it may draw."""
         return any(r in free for d in range(1, self._span(gate) + 1) for r in gate.at.get(gate.scan + d, ()))
@@ -115,7 +113,6 @@ class ChainMoves:
     def _span(self, gate: Gate) -> int:
         """How many scans after ``gate``'s an extension from it may reach in the window."""
         return min(self.config.max_misses + 1, self._scan - gate.scan)
-
 
     def _mortal(self, tracks):
         """Indices of the tracks without an anchor, which a death may remove."""

@@ -29,6 +29,9 @@ class Anchor:
 
 @dataclass(slots=True)
 class WindowReport:
+    """A report of the window: its scan, time (s), position and per-axis variance (the report's
+    covariance diagonal plus ``extra_variance``, units²), and whether it is a shared copy."""
+
     scan: int
     t: float
     x: float
@@ -36,7 +39,6 @@ class WindowReport:
     rx: float
     ry: float
     shared: bool = False
-
 
 
 class Gate:
@@ -57,13 +59,14 @@ class Gate:
             self.all.update(rids)
 
 
-
 @dataclass(slots=True)
 class ChainTrack:
+    """A track of the chain's state: its window reports (ids, in scan order), its anchor if it
+    has fixed reports, and its identity once it has one."""
+
     reports: tuple[int, ...]
     anchor: Anchor | None = None
     label: int | None = None
-
 
 
 class ScanWindow:
@@ -131,7 +134,6 @@ class ScanWindow:
             return a.x, a.y, a.scan, a.t, a.reports, reps
         sx, sy = self._initial(reps[0])
         return sx, sy, reps[0].scan, reps[0].t, 1, reps[1:]
-
 
     # ------------------------------------------------------------------ gate
 

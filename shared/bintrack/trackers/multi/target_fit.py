@@ -62,7 +62,6 @@ grid of ``GridFusion``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -70,54 +69,12 @@ from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
 from bintrack.bus_payloads import PositionReport
+from bintrack.trackers.multi.fit_scan import FitScan
 from bintrack.trackers.multi.fusion_config import FusionConfig
+from bintrack.trackers.multi.track_expectation import Expectation
 
-# A report's least variance per axis, in cells²: a uniform position in a cell of side h has h²/12.
-_MIN_VARIANCE_CELLS = 1.0 / 12.0
 # Starting offsets of a split, as angles of the line through the two new targets.
 _SPLIT_ANGLES = np.arange(4) * np.pi / 4
-_MAX_SWEEPS = 10
-# Rounds of the coordinate ascent that places the two targets of a split.
-_SPLIT_ROUNDS = 4
-
-
-@dataclass(frozen=True)
-class Expectation:
-    """Where a live track expects its target in the scan being fused."""
-
-    x: float
-    """predicted position, deployment units"""
-    y: float
-    sigma: float
-    """standard deviation of the predicted position (larger axis), units"""
-    vx: float
-    """velocity, units/s"""
-    vy: float
-    reports: int
-    """reports the track has taken so far"""
-    unreported: int
-    """scans since its last report, counting this one (1: it was reported in the previous scan)"""
-
-
-@dataclass
-class _Target:
-    cell: int
-    expectation: int | None = None  # index into the scan's expectations; None for a new target
-    gate: np.ndarray | None = None  # cells it may occupy (an expected target)
-    log_prior: np.ndarray | None = None  # log π over ``gate``
-
-
-def weighted_report(cells: np.ndarray, w: np.ndarray, cell: float, weight: float) -> PositionReport:
-    """A position report from grid cells (n × 2, units) weighted by ``w``: their weighted mean
-    and covariance plus the quantization of a cell of side ``cell`` (h²/12 per axis), units²."""
-    w_sum = float(w.sum())
-    centre = (w[:, None] * cells).sum(axis=0) / w_sum
-    spread = cells - centre
-    cov = (w[:, None, None] * np.einsum("ni,nj->nij", spread, spread)).sum(axis=0) / w_sum
-    cov += np.eye(2) * _MIN_VARIANCE_CELLS * cell ** 2
-    return PositionReport(x=float(centre[0]), y=float(centre[1]),
-                          cov=((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))),
-                          weight=weight)
 
 
 class FitGrid(Protocol):
@@ -156,6 +113,11 @@ class TargetFit:
         self._padded[np.arange(cover.nnz) - np.repeat(cover.indptr[:-1], lengths),
                      np.repeat(np.arange(cover.shape[0]), lengths)] = cover.indices
         self._split_starts: dict[int, list[tuple[int, int]]] = {}
+
+    @property
+    def sensors_of(self) -> list[np.ndarray]:
+        """Per cell: the sensors covering it, in ``cover``'s order."""
+        return self._sensors_of
 
     def sums(self, rows: np.ndarray, per_sensor: np.ndarray) -> np.ndarray:
         """Per cell of ``rows``: the sum of ``per_sensor`` (n + 1 entries, the last 0) over the
@@ -200,7 +162,7 @@ class TargetFit:
         """The position reports of one scan: ``detecting`` is every sensor's status in
         ``grid.ids`` order; ``expected`` the tracks' expectations, strongest first. Covariances
         are in units²; ``weight`` is the target's gain in nats."""
-        scan = _Scan(self, detecting)
+        scan = FitScan(self, detecting)
         for e, expectation in enumerate(expected):
             scan.place_expected(e, expectation)
         if scan.targets:
@@ -220,261 +182,3 @@ class TargetFit:
         if self.config.shared:
             reports += scan.shared_copies(reports, expected)
         return reports
-
-
-class _Scan:
-    """The targets placed so far in one scan, how many of them cover each sensor, and the gain
-    of every cell given all of them.
-
-    A target's gain at a cell depends only on the sensors covering that cell. So placing,
-    moving or removing a target changes the gains only of the cells covering a sensor it frees or
-    newly covers, and the gains given every target but one differ from those given all only at
-    the cells covering a sensor that target alone covers. Only those cells are recomputed (an
-    expected target's, only over its gate); the rest of the grid is read, so a step's cost no
-    longer grows with targets × cells. Every gain is the same sum over the same sensors, in the
-    same order, as a whole-grid ``cover @ weights`` gives, bit for bit.
-    """
-
-    def __init__(self, fit: TargetFit, detecting: np.ndarray):
-        self.fit = fit
-        self.grid = fit.grid
-        self.config = fit.config
-        self.hits = detecting > 0
-        # per sensor, nats, and a last entry 0 for the padding of ``TargetFit.sums``
-        self.weight = np.append(np.where(self.hits, self.grid.log_hit_ratio, self.grid.log_miss_ratio), 0.0)
-        self.targets: list[_Target] = []
-        self.count = np.zeros(len(self.weight), dtype=np.int32)
-        """per sensor: the targets whose cell it covers (the padding's entry stays 0)"""
-        self.base = self.grid.cover @ self.weight[:-1]
-        """per cell: the gain (nats) of a target there given all the targets placed, kept up to
-        date where a sensor becomes free or covered"""
-        self.gains_alone = self.base.copy()
-        """per cell: the gain (nats) of a target there with no other target, the same for every
-        track's expected target in the scan"""
-        self._best: dict[tuple, int] = {}
-        """``_best_all`` for the present targets, by (cell of the target left out, extra cells)"""
-
-    def _recount(self, remove: int | None, add: int | None) -> None:
-        """Take a target off the cell ``remove`` and put one on ``add`` (either may be None),
-        and recompute ``base`` at the cells covering a sensor that became free or covered."""
-        sensors_of = self.fit._sensors_of
-        touched = np.concatenate([sensors_of[c] for c in (remove, add) if c is not None])
-        before = self.count[touched] == 0
-        if remove is not None:
-            self.count[sensors_of[remove]] -= 1
-        if add is not None:
-            self.count[sensors_of[add]] += 1
-        rows = self.fit.cells_covering(touched[(self.count[touched] == 0) != before])
-        self.base[rows] = self.fit.sums(rows, self._free_weight())
-        self._best.clear()
-
-    def _append(self, target: _Target) -> None:
-        self.targets.append(target)
-        self._recount(None, target.cell)
-
-    def _remove(self, k: int) -> None:
-        self._recount(self.targets[k].cell, None)
-        del self.targets[k]
-
-    def _move(self, target: _Target, cell: int) -> None:
-        old, target.cell = target.cell, cell
-        self._recount(old, cell)
-
-    def _free(self, k: int | None = None, extra=()) -> np.ndarray:
-        """Per sensor: True where no target but target ``k`` (and none at the cells ``extra``) covers it."""
-        free = self.count == 0
-        if k is not None:
-            own = self.fit._sensors_of[self.targets[k].cell]
-            free[own] = self.count[own] == 1
-        for c in extra:
-            free[self.fit._sensors_of[c]] = False
-        return free
-
-    def _free_weight(self, k: int | None = None, extra=()) -> np.ndarray:
-        """Per sensor: its weight (nats) where ``_free``, else 0."""
-        return self.weight * self._free(k, extra)
-
-    def _gains_on(self, rows: np.ndarray, k: int | None = None, extra=()) -> np.ndarray:
-        """Gains (nats) of a target at the cells ``rows`` given every target but ``k`` (and
-        targets at ``extra``)."""
-        return self.fit.sums(rows, self._free_weight(k, extra))
-
-    def _differing(self, k: int, extra=()) -> tuple[np.ndarray, np.ndarray]:
-        """The cells where a target's gain given every target but ``k`` and targets at ``extra``
-        differs from ``base`` (those target ``k`` or ``extra`` reach), and those gains (nats)."""
-        free = self._free(k, extra)
-        rows = self.fit.cells_covering(np.flatnonzero((self.count == 0) != free))
-        return rows, self.fit.sums(rows, self.weight * free)
-
-    def _gains_all(self, k: int, extra=()) -> np.ndarray:
-        """Per cell: the gain (nats) of a target there given every target but ``k`` and targets
-        at ``extra``: ``base``, recomputed where target ``k`` or ``extra`` reach."""
-        rows, gains = self._differing(k, extra)
-        gain = self.base.copy()
-        gain[rows] = gains
-        return gain
-
-    def _best_all(self, k: int, extra=()) -> int:
-        """``np.argmax(self._gains_all(k, extra))``, without copying the grid's gains (once
-        per placement of the targets: a split's ascents often ask again)."""
-        key = (self.targets[k].cell, *extra)
-        best = self._best.get(key)
-        if best is None:
-            rows, gains = self._differing(k, extra)
-            kept = self.base[rows]
-            self.base[rows] = gains
-            best = self._best[key] = int(np.argmax(self.base))
-            self.base[rows] = kept
-        return best
-
-    def _support(self, target: _Target, gain: np.ndarray) -> float:
-        """log Σ π e^gain over an expected target's gate (``gain`` per gate cell): its evidence, nats."""
-        x = target.log_prior + gain
-        top = float(x.max())
-        return top + math.log(float(np.exp(x - top).sum()))
-
-    def place_expected(self, e: int, expectation: Expectation) -> None:
-        radius = self.config.expected_sigmas * expectation.sigma
-        gate = np.asarray(self.grid.cell_tree.query_ball_point((expectation.x, expectation.y), r=radius), dtype=int)
-        if gate.size == 0:
-            return
-        d2 = ((self.grid.cells[gate] - (expectation.x, expectation.y)) ** 2).sum(axis=1)
-        # normalised per cell of the whole Gaussian, not over the gate's covered cells: prior
-        # mass beyond the sensors' reach (a target leaving) supports nothing
-        log_prior = -0.5 * d2 / expectation.sigma ** 2 - math.log(2 * math.pi * expectation.sigma ** 2 / self.grid.cell ** 2)
-        target = _Target(cell=-1, expectation=e, gate=gate, log_prior=log_prior)
-        if self._support(target, self.gains_alone[gate]) >= self.config.expected_gain:
-            target.cell = int(gate[np.argmax(self._gains_on(gate))])
-            self._append(target)
-
-    def place_new(self) -> bool:
-        new_hits = self.grid.cover @ (self.hits & (self.count[:-1] == 0)).astype(float)
-        gain = np.where(new_hits >= self.config.threshold, self.base, -np.inf)
-        best = int(np.argmax(gain))
-        if not gain[best] >= self.config.min_gain:
-            return False
-        self._append(_Target(cell=best))
-        return True
-
-    def settle(self) -> None:
-        """Coordinate ascent: each target moves to its best cell (within its gate) given the others."""
-        for _ in range(_MAX_SWEEPS):
-            moved = False
-            for k, target in enumerate(self.targets):
-                if target.gate is not None:
-                    cells = target.gate
-                    gain = self._gains_on(cells, k)
-                    i = int(np.argmax(gain))
-                    best, better = int(cells[i]), gain[i] > gain[np.flatnonzero(cells == target.cell)[0]] + 1e-9
-                else:
-                    gain = self._gains_all(k)
-                    best = int(np.argmax(gain))
-                    better = gain[best] > gain[target.cell] + 1e-9
-                if better:
-                    self._move(target, best)
-                    moved = True
-            if not moved:
-                return
-
-    def _total(self, free_weight: np.ndarray) -> float:
-        """ℓ of the targets that leave the sensors of ``free_weight`` (from ``_free_weight``) free, nats."""
-        return float((self.weight[:-1] - free_weight[:-1]).sum())
-
-    def split_one(self) -> bool:
-        """Replace one target by the two that explain the scan best, if that gains min_gain (a
-        track's target: expected_split_gain)."""
-        for k, target in enumerate(self.targets):
-            expected = target.expectation is not None
-            bar = self.config.expected_split_gain if expected else self.config.min_gain
-            if bar == math.inf:
-                continue
-            best_pair, best_total = None, self._total(self._free_weight()) + bar
-            # each round of the ascent depends only on the pair it starts from: the pair that
-            # (pair, rounds left) ends at, and the pairs already scored (a repeat cannot win)
-            ends: dict[tuple[int, int, int], tuple[int, int]] = {}
-            scored: set[tuple[int, int]] = set()
-            for pair in self.fit.split_starts(target.cell):
-                pair = list(pair)
-                if expected:
-                    pair[0] = target.cell
-                path = []
-                for left in range(_SPLIT_ROUNDS, 0, -1):
-                    start = (pair[0], pair[1])
-                    if (*start, left) in ends:
-                        pair = list(ends[(*start, left)])
-                        break
-                    path.append((*start, left))
-                    for i in (0, 1):
-                        if expected and i == 0:
-                            gain = self._gains_on(target.gate, k, extra=[pair[1]])
-                            pair[0] = int(target.gate[int(np.argmax(gain))])
-                        else:
-                            pair[i] = self._best_all(k, extra=[pair[1 - i]])
-                    if (pair[0], pair[1]) == start:  # a fixed point: the rounds left change nothing
-                        break
-                end = (pair[0], pair[1])
-                ends.update(dict.fromkeys(path, end))
-                if end in scored:
-                    continue
-                scored.add(end)
-                total = self._total(self._free_weight(k, extra=pair))
-                if total > best_total:
-                    best_pair, best_total = pair, total
-            if best_pair is not None:
-                self._move(target, best_pair[0])
-                self._append(_Target(cell=best_pair[1]))
-                return True
-        return False
-
-    def prune(self) -> None:
-        """Drop, one at a time, the target furthest below its threshold given the others."""
-        while self.targets:
-            margins = []
-            for k, target in enumerate(self.targets):
-                if target.expectation is not None:
-                    margins.append(self._support(target, self._gains_on(target.gate, k)) - self.config.expected_gain)
-                else:
-                    margins.append(float(self._gains_on(np.array([target.cell]), k)[0]) - self.config.min_gain)
-            worst = int(np.argmin(margins))
-            if margins[worst] >= 0:
-                return
-            self._remove(worst)
-            self.settle()
-
-    def report(self, k: int) -> PositionReport:
-        target = self.targets[k]
-        near = np.asarray(self.grid.cell_tree.query_ball_point(self.grid.cells[target.cell],
-                                                               r=float(self.grid.cell_range[target.cell])), dtype=int)
-        gain = self._gains_on(near, k)
-        here = float(gain[np.flatnonzero(near == target.cell)[0]])
-        return weighted_report(self.grid.cells[near], np.exp(gain - here), self.grid.cell, weight=max(here, 0.0))
-
-    def shared_copies(self, reports: list[PositionReport], expected) -> list[PositionReport]:
-        """Copies of reports for established tracks hidden in another track's blob (module docstring, 6)."""
-        if not reports:
-            return []
-        c = self.config
-        placed_for = {t.expectation: k for k, t in enumerate(self.targets) if t.expectation is not None}
-        owner_of = {k: e for e, k in placed_for.items()}
-        centres = np.array([(r.x, r.y) for r in reports])
-        copies, copied = [], set()
-        for e, hidden in enumerate(expected):
-            if e in placed_for or hidden.reports < c.shared_age or hidden.unreported > c.shared_unreported:
-                continue
-            gaps = np.hypot(centres[:, 0] - hidden.x, centres[:, 1] - hidden.y)
-            k = int(np.argmin(gaps))
-            if k not in owner_of or k in copied:
-                continue
-            reach = float(self.grid.cell_range[self.targets[k].cell])
-            other = expected[owner_of[k]]
-            if (gaps[k] > c.shared_gap * reach or other.reports < c.shared_age
-                    or math.hypot(hidden.vx - other.vx, hidden.vy - other.vy) < self.grid.shared_speed
-                    or self.grid.depth(hidden.x, hidden.y) < c.shared_edge * reach):
-                continue
-            copied.add(k)
-            r = reports[k]
-            loose = gaps[k] ** 2 + (0.5 * reach) ** 2
-            copies.append(PositionReport(x=r.x, y=r.y, cov=((r.cov[0][0] + loose, r.cov[0][1]),
-                                                             (r.cov[1][0], r.cov[1][1] + loose)),
-                                         weight=0.0, shared=True))
-        return copies

@@ -26,7 +26,7 @@ from dataclasses import replace
 from bintrack.bus_payloads import Track, TrackSet
 from bintrack.trackers.multi.kalman_model import kf_predict
 from bintrack.trackers.multi.mcmcda_window import ChainTrack
-from bintrack.trackers.multi.target_fit import Expectation
+from bintrack.trackers.multi.track_expectation import Expectation
 
 
 class TrackIdentity:
@@ -41,7 +41,6 @@ class TrackIdentity:
         identity = self._next_identity
         self._next_identity += 1
         return identity
-
 
     def _label(self) -> None:
         """Give each MAP track without an anchor the identity most of its reports last had. An
