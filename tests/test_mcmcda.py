@@ -22,7 +22,7 @@ from bintrack.evaluation.metrics import multi_target_scores, truth_paths
 from bintrack.pipeline import run_tracker
 from bintrack.trackers import TrackerOptions, make_tracker
 
-from support import DATASETS
+from support import DATASETS, REPO
 
 
 def grid_deployment(pd: float | None = 0.7, pfa: float | None = 0.05) -> Deployment:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import gzip
 import os
-from pathlib import Path
 
 import pytest
 
@@ -26,12 +25,12 @@ from bintrack.trackers.laser.phase3_frame import Frame
 from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
 from bintrack.trackers.multi.mcmcda_window import ChainTrack
 from bintrack.transition_detector import TransitionDetector
+from support import DATASETS, REPO
 
-REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data" / "checkpoint-before-moves"
 CASES = {
     "mcmcda": (DATA, TrackerOptions(estimates="arc", n_mc=100)),
-    "adaptive-basis": (REPO / "datasets" / "laser-testbed", TrackerOptions()),
+    "adaptive-basis": (DATASETS / "laser-testbed", TrackerOptions()),
 }
 
 
