@@ -16,7 +16,6 @@ import argparse
 import asyncio
 import json
 import signal
-import struct
 import subprocess
 import sys
 import threading
