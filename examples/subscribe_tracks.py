@@ -78,8 +78,8 @@ def main():
     # A ring channel keeps the latest 256 samples and drops older ones if we fall behind,
     # so a slow terminal never blocks Zenoh.
     subscriber = session.declare_subscriber(key, zenoh.handlers.RingChannel(256))
-    print(f"subscribed to {key} (Ctrl-C to stop)", file=sys.stderr, flush=True)
     try:
+        print(f"subscribed to {key} (Ctrl-C to stop)", file=sys.stderr, flush=True)
         for sample in subscriber.handler:
             try:
                 lines = track_lines(sample.payload.to_bytes())

@@ -17,7 +17,7 @@ from bintrack.mqtt.payload_reader import PayloadError, PayloadReader
 from bintrack.mqtt.sensor_table import PayloadSpec, TableError, load_table, parse_instant, table_text
 from bintrack.mqtt.zigbee_playback import check_zigbee, iso_time, zigbee_messages
 
-from conftest import REPO
+from support import REPO
 
 DARPA3 = REPO / "datasets" / "darpa-grid-3"
 EPOCH = "2026-01-01T00:00:00Z"

@@ -21,7 +21,7 @@ from bintrack.cli import main as cli
 from bintrack.formats import read_tracks
 from bintrack.live.session_options import client_config
 
-from conftest import HUNG, REPO, free_port
+from support import HUNG, REPO, free_port
 
 DARPA3 = REPO / "datasets" / "darpa-grid-3"
 EPOCH = "2026-01-01T00:00:00Z"
