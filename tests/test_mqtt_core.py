@@ -372,9 +372,13 @@ def test_the_mqtt_compose_file_runs_the_bridge_on_its_shipped_table_and_the_offi
 
 
 def test_the_readme_sensor_table_and_broker_config_load(tmp_path):
-    text = (REPO / "README.md").read_text()
-    section = text[text.index("## Real sensors on MQTT"):]
-    blocks = [b.split("```", 1)[0] for b in section.split("```toml\n")[1:3]]
+    readme = (REPO / "README.md").read_text()
+    section = readme[readme.index("## Real sensors on MQTT"):]
+    short = tmp_path / "readme.toml"
+    short.write_text(section.split("```toml\n")[1].split("```", 1)[0])
+    assert [s.id for s in load_table(short).sensors] == ["hall"]
+    text = (REPO / "docs" / "mqtt.md").read_text()
+    blocks = [b.split("```", 1)[0] for b in text.split("```toml\n")[1:3]]
     table = tmp_path / "office.toml"
     table.write_text(blocks[0])
     loaded = load_table(table)
