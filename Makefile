@@ -22,9 +22,11 @@ demo: $(STAMP)
 	@$(BINTRACK) demo $(DEMO_ARGS)
 
 # One worker per core (pytest-xdist), a test file per worker: the live tests mostly wait on
-# services and routers, so two files at once on 2 cores halve the time.
+# services and routers, so two files at once on 2 cores halve the time. Files go out in the
+# order they are collected: xdist's default, the files with most tests first, would send the
+# container engine's file (4 tests, minutes of building and running) last, to run alone.
 test: $(STAMP) browser mosquitto engine
-	$(PY) -m pytest -q -n auto --dist loadfile
+	$(PY) -m pytest -q -n auto --dist loadfile --no-loadscope-reorder
 
 # The inner loop (about a third of `make test`'s time): what `make test` runs but the `slow`
 # tests (long or statistical checks) and the longest live files, which `make test` (and CI)
