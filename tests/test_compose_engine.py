@@ -42,7 +42,7 @@ import yaml
 from bintrack.cli import main as cli
 from bintrack.formats import read_tracks
 from bintrack.trackers import runs_on_peers
-from conftest import HUNG, REPO
+from support import HUNG, REPO
 
 PACKAGES = {"podman": "podman", "podman-compose": "podman-compose", "mmdebstrap": "mmdebstrap", "runc": "runc"}
 _missing = [package for package, command in PACKAGES.items() if shutil.which(command) is None]
