@@ -14,6 +14,7 @@ import asyncio
 import fnmatch
 import importlib.metadata
 import importlib.util
+import ipaddress
 import json
 import re
 import shlex
@@ -76,7 +77,11 @@ def uses_our_build(service: dict) -> bool:
     return isinstance(build, dict) and build.get("context") == "." and build.get("dockerfile") == "deploy/Dockerfile"
 
 
-BINTRACK = {name: service for name, service in SERVICES.items() if uses_our_build(service)}
+ROUTER_MODULE = "bintrack.services.router"
+# the bintrack services but the router (the tests' own router stands in for it)
+BINTRACK = {name: service for name, service in SERVICES.items()
+            if uses_our_build(service) and service["command"][0] != ROUTER_MODULE}
+PUBLIC_BENCHMARK_NET = ipaddress.ip_network("198.18.0.0/15")
 
 
 def container_argv(service: dict) -> list[str]:
@@ -117,27 +122,40 @@ def dependency_order(services: dict) -> list[str]:
 
 
 def test_every_service_has_an_image_or_our_build():
-    assert "router" in SERVICES and set(BINTRACK) == {"replay", "sensor_agent", "basestation", "recorder", "view",
-                                                   "foxglove_bridge"}
+    assert set(BINTRACK) == {"replay", "sensor_agent", "basestation", "recorder", "view", "foxglove_bridge"}
     for name, service in SERVICES.items():
         assert service.get("image") or uses_our_build(service), name
         for dependency in service.get("depends_on", {}):
             assert dependency in SERVICES, f"{name} depends on unknown {dependency}"
-    images = {service.get("image") for service in BINTRACK.values()}
-    assert len(images) == 1 and None not in images, f"the bintrack services must share one image name: {images}"
+    images = {service.get("image") for service in SERVICES.values()}
+    assert len(images) == 1 and None not in images, f"every service, the router too, runs one image: {images}"
 
 
-def test_router_is_the_pinned_official_image_with_our_config():
+def test_router_runs_from_our_image_with_our_config_and_the_official_one_is_documented():
     router = SERVICES["router"]
-    repository, _, tag = router["image"].partition(":")
-    assert repository == "eclipse/zenoh"
-    ours = importlib.metadata.version("eclipse-zenoh").split(".")[:2]
-    assert tag.split(".")[:2] == ours, f"router {tag} vs eclipse-zenoh {'.'.join(ours)}"
+    assert uses_our_build(router) and router["command"][0] == ROUTER_MODULE
     command = router["command"]
+    assert option_values(command, "-l", "--listen") == ["tcp/[::]:7447"]
     config_path = option_values(command, "-c", "--config")
     assert config_path, command
     mounts = {volume.split(":")[1]: volume.split(":")[0] for volume in router["volumes"]}
     assert (REPO / mounts[config_path[0]]).resolve() == ROUTER_CONFIG
+    # the alternative, the official zenohd image, in a comment: the version of our eclipse-zenoh
+    ours = importlib.metadata.version("eclipse-zenoh").split(".")[:2]
+    for name in ("docker-compose.yml", "docker-compose.multi.yml"):
+        tags = re.findall(r"#.*image: eclipse/zenoh:(\S+)", (REPO / name).read_text())
+        assert tags and all(tag.split(".")[:2] == ours for tag in tags), f"{name}: {tags} vs eclipse-zenoh {ours}"
+
+
+@pytest.mark.parametrize("name", ["docker-compose.yml", "docker-compose.secure.yml", "docker-compose.multi.yml"])
+def test_every_compose_file_declares_its_network_on_a_benchmarking_subnet(name):
+    """198.18.0.0/15 (RFC 2544) is no LAN's: the stack's network never collides with the user's."""
+    networks = yaml.safe_load((REPO / name).read_text())["networks"]
+    assert set(networks) == {"default"}, networks
+    (config,) = networks["default"]["ipam"]["config"]
+    assert ipaddress.ip_network(config["subnet"]).subnet_of(PUBLIC_BENCHMARK_NET), config
+    if name == "docker-compose.secure.yml":  # an override of the base file: the same network
+        assert networks == COMPOSE["networks"]
 
 
 def test_router_config_parses_and_runs_a_router():
@@ -162,13 +180,16 @@ def test_router_config_parses_and_runs_a_router():
 
 
 def test_dockerfile_installs_the_project_as_a_non_root_user():
-    assert INSTRUCTIONS[0] == ("FROM", "python:3.11-slim")
+    # the base is a build argument, python:3.11-slim unless given
+    assert INSTRUCTIONS[0] == ("ARG", "BASE=python:3.11-slim")
+    bases = [rest.split()[0] for keyword, rest in INSTRUCTIONS if keyword == "FROM"]
+    assert bases and set(bases) == {"${BASE}"}, bases
     project = tomllib.loads((REPO / "pyproject.toml").read_text())
     needed = {"pyproject.toml", project["project"]["readme"],
               *project["tool"]["setuptools"]["package-dir"].values()}
     copied = set()
     for keyword, rest in INSTRUCTIONS:
-        if keyword == "COPY":
+        if keyword == "COPY" and not rest.startswith("--from="):  # not another stage's files
             sources = shlex.split(rest)[:-1]
             for source in sources:
                 assert (REPO / source).exists(), f"COPY {source}: not in the repository"

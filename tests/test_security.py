@@ -215,7 +215,7 @@ def test_the_compose_override_runs_every_service_of_the_base_file_under_its_role
     base = yaml.safe_load((REPO / "docker-compose.yml").read_text())["services"]
     secure = yaml.safe_load((REPO / "docker-compose.secure.yml").read_text())["services"]
     assert set(secure) == set(base)
-    assert secure["router"]["command"] == ["-c", "/secure/router.json5"]
+    assert secure["router"]["command"] == ["bintrack.services.router", "-c", "/secure/router.json5", "-l", "tls/[::]:7447"]
     for name, service in secure.items():
         assert {"./deploy/secure:/secure:ro", "./certs:/certs:ro"} <= set(service["volumes"]), name
         if name == "router":
