@@ -38,8 +38,7 @@ from bintrack.live.recording_files import RecordingFiles
 from bintrack.live.service import Service, service_main
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.live.track_history import fetch_tracks_after
-from bintrack.live.foxglove_export import export_foxglove
-from bintrack.live.recording import open_recording
+from bintrack.live.foxglove_export import write_foxglove_copy
 
 log = logging.getLogger("bintrack")
 
@@ -64,18 +63,6 @@ def add_arguments(parser: argparse.ArgumentParser, until_default: str = "eos", n
     parser.add_argument("--id", help="instance id (default: host-pid)")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     add_bus_arguments(parser, net_default=net_default)
-
-
-def foxglove_path(path: Path | str) -> Path:
-    """Where ``--foxglove`` writes Foxglove's copy of the recording ``path``: FILE.foxglove.mcap."""
-    return Path(path).with_suffix(".foxglove.mcap")
-
-
-def write_foxglove_copy(path: Path | str) -> None:
-    """Foxglove's copy of the finished recording ``path`` beside it."""
-    copy = foxglove_path(path)
-    export_foxglove(open_recording(path), copy)
-    log.info("recorder: Foxglove's copy in %s", copy)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -11,6 +11,7 @@ it; plus one channel ``/scene`` of ``foxglove.SceneUpdate`` messages for the 3D 
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
 from mcap.writer import Writer
@@ -18,7 +19,10 @@ from mcap.writer import Writer
 from bintrack import __version__
 from bintrack.formats import deployment_text
 from bintrack.live.foxglove_scene import SCENE_SCHEMA, SCENE_TOPIC, SceneBuilder
-from bintrack.live.recording import DEPLOYMENT_ATTACHMENT, KIND_TYPES, RECORDING_FORMAT, RECORDING_METADATA, Recording
+from bintrack.live.recording import (DEPLOYMENT_ATTACHMENT, KIND_TYPES, RECORDING_FORMAT, RECORDING_METADATA, Recording,
+                                     open_recording)
+
+log = logging.getLogger("bintrack")
 
 
 def export_foxglove(recording: Recording, out: Path | str) -> dict[str, int]:
@@ -57,3 +61,15 @@ def export_foxglove(recording: Recording, out: Path | str) -> dict[str, int]:
                 counts["scene"] = counts.get("scene", 0) + 1
         writer.finish()
     return counts
+
+
+def foxglove_path(path: Path | str) -> Path:
+    """Where ``--foxglove`` writes Foxglove's copy of the recording ``path``: FILE.foxglove.mcap."""
+    return Path(path).with_suffix(".foxglove.mcap")
+
+
+def write_foxglove_copy(path: Path | str) -> None:
+    """Foxglove's copy of the finished recording ``path`` beside it."""
+    copy = foxglove_path(path)
+    export_foxglove(open_recording(path), copy)
+    log.info("recorder: Foxglove's copy in %s", copy)
