@@ -109,14 +109,14 @@ def bintrack(*args: str) -> subprocess.CompletedProcess:
 
 def start_up(tmp: Path, broker: Broker, table: Path) -> tuple[subprocess.Popen, Lines, str, Path]:
     """`bintrack up --source mqtt://…` with mcmcda and a recording; waits until the bridge
-    subscribes. (process, its stderr lines, its router endpoint, the recording)."""
+    is subscribed (the broker acknowledged). (process, its stderr lines, its router endpoint, the recording)."""
     endpoint, recording = f"tcp/127.0.0.1:{free_port()}", tmp / "live.mcap"
     proc = subprocess.Popen([sys.executable, "-m", "bintrack.cli", "up", "--source", broker.url, "--sensor-table",
                              str(table), "--end-topic", "bintrack/end", "--clock", "payload", "--tracker", "mcmcda",
-                             "--record", str(recording), "--exit-at-end", "--no-view", "--listen", endpoint],
+                             "--record", str(recording), "--exit-at-end", "--no-map", "--listen", endpoint],
                             stderr=subprocess.PIPE, text=True, cwd=REPO)
     lines = Lines(proc.stderr)
-    lines.wait_for("mqtt_bridge: subscribing to 2 topics")
+    lines.wait_for(r"mqtt_bridge: subscribed to 2 topics \(the broker acknowledged\)")
     return proc, lines, endpoint, recording
 
 

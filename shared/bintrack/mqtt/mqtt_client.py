@@ -125,6 +125,7 @@ class Subscription:
         self._closing = False
         self.client = make_client(options, client_id)
         self.client.on_connect, self.client.on_disconnect = self._on_connect, self._on_disconnect
+        self.client.on_subscribe = self._on_subscribe
         self.client.on_message = lambda c, u, m: on_message(m.topic, m.payload, bool(m.retain))
 
     def start(self, wait: float, stop: threading.Event | None = None) -> None:
@@ -149,6 +150,14 @@ class Subscription:
                         if flags.session_present else "had lost this session: what it received meanwhile is lost")
         if not flags.session_present:  # (a kept session has the subscriptions; subscribing again resends the retained)
             client.subscribe([(topic, 1) for topic in self.topics])
+
+    def _on_subscribe(self, client, userdata, mid, reasons, props) -> None:
+        refused = [str(reason) for reason in reasons if reason.is_failure]
+        if refused:
+            log.warning("%s: the broker %s refused %d of the subscriptions: %s", self.who, self.options.url,
+                        len(refused), ", ".join(refused))
+        else:
+            log.info("%s: subscribed to %d topics (the broker acknowledged)", self.who, len(self.topics))
 
     def _on_disconnect(self, client, userdata, flags, reason, props) -> None:
         if not self._closing:
