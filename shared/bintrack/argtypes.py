@@ -127,3 +127,14 @@ def add_alias(parser: argparse.ArgumentParser, old: str, new: str, dest: str, *,
 
     parser.add_argument(old, dest=dest, action=Alias, nargs=0 if flag_value is not None else None,
                         default=argparse.SUPPRESS, help=argparse.SUPPRESS, **kwargs)
+
+
+def area_type(text: str) -> tuple[float, float, float, float]:
+    """XMIN,YMIN,XMAX,YMAX: a rectangle with XMIN < XMAX and YMIN < YMAX."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not four numbers xmin,ymin,xmax,ymax: {text!r}") from None
+    if len(values) != 4 or not (values[0] < values[2] and values[1] < values[3]):
+        raise argparse.ArgumentTypeError(f"needs xmin,ymin,xmax,ymax with xmin < xmax and ymin < ymax, got {text!r}")
+    return values

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from bintrack.argtypes import output_file, positive_float
+from bintrack.argtypes import area_type, output_file, positive_float
 from bintrack.errors import CommandError
 from bintrack.evaluation.clear_mot import MATCHINGS
 from bintrack.evaluation.eval_report import DEFAULT_GOSPA_C, DEFAULT_HIT, evaluate
@@ -27,17 +27,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--area", type=area_type, metavar="XMIN,YMIN,XMAX,YMAX",
                         help="score only targets and tracks inside this tracking area, dataset units")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON object")
-
-def area_type(text: str) -> tuple[float, float, float, float]:
-    """XMIN,YMIN,XMAX,YMAX: a rectangle with XMIN < XMAX and YMIN < YMAX."""
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not four numbers xmin,ymin,xmax,ymax: {text!r}") from None
-    if len(values) != 4 or not (values[0] < values[2] and values[1] < values[3]):
-        raise argparse.ArgumentTypeError(f"needs xmin,ymin,xmax,ymax with xmin < xmax and ymin < ymax, got {text!r}")
-    return values
-
 
 def run(args: argparse.Namespace) -> int:
     dataset = open_dataset(args.dir)

@@ -8,23 +8,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from bintrack.argtypes import int_at_least, output_folder, positive_float
+from bintrack.argtypes import area_type, int_at_least, output_folder, positive_float
 from bintrack.errors import CommandError
 from bintrack.formats import write_dataset
 from bintrack.importers.binary_matrix import (METRES_PER, matrix_events, parse_columns, read_sample_matrix,
                                               read_sensor_table)
 from bintrack.importers.cvml import read_cvml
 from bintrack.deployment_model import Deployment, DiskSensor, Region
-
-
-def _region(text: str) -> tuple[float, float, float, float]:
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not four numbers xmin,ymin,xmax,ymax: {text!r}") from None
-    if len(values) != 4 or not (values[0] < values[2] and values[1] < values[3]):
-        raise argparse.ArgumentTypeError(f"needs xmin,ymin,xmax,ymax with xmin < xmax and ymin < ymax, got {text!r}")
-    return values
 
 
 def _columns(text: str) -> list[int]:
@@ -61,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="sensing (footprint) radius, m, as the hardware states it")
     parser.add_argument("--pd", type=_probability, help="detection probability per sample to state for every sensor (default: none)")
     parser.add_argument("--pfa", type=_probability, help="false-alarm probability per sample to state for every sensor (default: none)")
-    parser.add_argument("--region", type=_region, metavar="XMIN,YMIN,XMAX,YMAX",
+    parser.add_argument("--region", type=area_type, metavar="XMIN,YMIN,XMAX,YMAX",
                         help="surveillance region, m (default: the sensors' bounding box grown by the range)")
     parser.add_argument("--name", help="deployment name (default: the name of DIR)")
     parser.add_argument("--truth", metavar="GT.xml", help="ground truth in CVML XML: box centres are positions")
