@@ -56,7 +56,7 @@ if os.geteuid() != 0:
 
 # The base: Python 3.11 from Debian's own packages (docs, manuals and translations left out).
 SUITE = "bookworm"
-MMDEBSTRAP = ["mmdebstrap", "--variant=minbase", "--include=python3,python3-venv,python3-pip",
+MMDEBSTRAP = ["mmdebstrap", "--variant=minbase", "--include=python3,python3-venv",  # the venv brings its own pip
               "--hook-dir=/usr/share/mmdebstrap/hooks/merged-usr",  # merged /usr without usrmerge (and its perl)
               *(f"--dpkgopt=path-exclude=/usr/share/{d}/*" for d in ("doc", "man", "info", "locale")),
               "--dpkgopt=path-include=/usr/share/doc/*/copyright", SUITE]
