@@ -45,7 +45,8 @@ from bintrack.trackers import runs_on_peers
 from support import HUNG, REPO
 
 if not os.environ.get("BINTRACK_ENGINE_TESTS"):
-    pytest.skip("the compose files in a container engine run with `make test-engine`", allow_module_level=True)
+    pytest.skip("the compose files in a container engine run with `make test` or `make test-engine` "
+                "(BINTRACK_ENGINE_TESTS=1)", allow_module_level=True)
 PACKAGES = {"podman": "podman", "podman-compose": "podman-compose", "mmdebstrap": "mmdebstrap", "runc": "runc"}
 _missing = [package for package, command in PACKAGES.items() if shutil.which(command) is None]
 if _missing:
