@@ -85,7 +85,12 @@ def engine(tmp_path_factory) -> dict[str, str]:
     """The environment for podman and podman-compose: our containers.conf."""
     conf = tmp_path_factory.mktemp("engine") / "containers.conf"
     conf.write_text(CONTAINERS_CONF)
-    return {**os.environ, "CONTAINERS_CONF": str(conf)}
+    env = {**os.environ, "CONTAINERS_CONF": str(conf)}
+    info = podman(env, "info", check=False)
+    if info.returncode != 0:  # installed, but this host cannot run it (no storage driver, no cgroups…)
+        lines = info.stderr.strip().splitlines() or [f"exit {info.returncode}"]
+        pytest.skip(f"podman cannot run on this host ({lines[-1]}): the compose files are not run in an engine")
+    return env
 
 
 def podman(env: dict[str, str], *args: str, check: bool = True, timeout: float = HUNG) -> subprocess.CompletedProcess:
