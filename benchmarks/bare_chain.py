@@ -18,6 +18,7 @@ Run: ``.venv/bin/python benchmarks/bare_chain.py ROLE ENDPOINT N`` (ROLE = sourc
 
 from __future__ import annotations
 
+import argparse
 import sys
 import threading
 import time
@@ -101,17 +102,21 @@ def sink(session: zenoh.Session) -> None:
 
 
 def main(argv: list[str]) -> int:
-    role, endpoint = argv[0], argv[1]
-    session = zenoh.open(client_config([endpoint]))
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("role", choices=("source", "relay", "sink"))
+    parser.add_argument("endpoint", help="the router's endpoint, e.g. tcp/127.0.0.1:7447")
+    parser.add_argument("n", type=int, nargs="?", help="for source: how many samples to put")
+    args = parser.parse_args(argv)
+    if args.role == "source" and args.n is None:
+        parser.error("source needs N, the number of samples to put")
+    session = zenoh.open(client_config([args.endpoint]))
     try:
-        if role == "source":
-            source(session, int(argv[2]))
-        elif role == "relay":
+        if args.role == "source":
+            source(session, args.n)
+        elif args.role == "relay":
             relay(session)
-        elif role == "sink":
-            sink(session)
         else:
-            raise SystemExit(f"unknown role {role!r}: source, relay or sink")
+            sink(session)
     finally:
         session.close()
     return 0

@@ -8,6 +8,7 @@ import json
 import math
 import os
 import signal
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,17 @@ def pytest_configure(config):
     # test starts would inherit that; the tests interrupt them with SIGINT as a user would.
     if os.environ.get("PYTEST_XDIST_WORKER"):
         signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+# Started first, so that one worker runs them while the others share out the rest of the files.
+LONGEST_FILES = ("test_compose_engine.py",)
+
+
+def pytest_collection_modifyitems(session, config, items):
+    # the order pytest-xdist hands out files in (`make test` runs it with --no-loadscope-reorder):
+    # these first, then as xdist would order them by itself, the files with most tests first
+    per_file = Counter(item.path.name for item in items)
+    items.sort(key=lambda item: (item.path.name not in LONGEST_FILES, -per_file[item.path.name]))
 
 
 def write_foreign_dataset(folder: Path, *, nodes: int = 200, size: float = 200.0, sensing_range: float = 20.0,

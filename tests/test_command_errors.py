@@ -8,12 +8,14 @@ uncaught exception fails the test) and checks stderr holds exactly one line.
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 from bintrack.cli import main as cli
-from support import REPO, bintrack
+from support import HUNG, REPO, bintrack
 
 DARPA3 = REPO / "datasets" / "darpa-grid-3"
 UNWRITABLE = "/proc/bintrack-nowhere"
@@ -146,3 +148,20 @@ def test_an_old_option_name_still_works_and_warns_once(capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert status == 2
     assert [line for line in err if "warning" in line] == ["bintrack up: warning: --view-port is now --map-port"]
+
+
+@pytest.mark.parametrize("package, args", [
+    ("matplotlib", ["--plot", "{TMP}/plot.png"]),   # the plot
+    ("motmetrics", []),                             # IDF1
+])
+def test_a_package_the_installation_leaves_out_is_one_line_and_status_2(package, args, files):
+    # the container image leaves both out (deploy/Dockerfile): none of its services needs them
+    code = ("import sys; sys.modules[sys.argv[1]] = None\n"  # as if not installed: importing it fails
+            "from bintrack.cli.main import main; sys.exit(main(sys.argv[2:]))")
+    argv = ["eval", str(DARPA3), str(files["TRACKS"]), *(a.format(**files) for a in args)]
+    result = subprocess.run([sys.executable, "-c", code, package, *argv], capture_output=True, text=True, cwd=REPO,
+                            timeout=HUNG)
+    err = result.stderr.strip()
+    assert result.returncode == 2 and len(err.splitlines()) == 1, err
+    assert err == (f"bintrack eval: error: this needs the Python package {package}, which this installation "
+                   f"leaves out (pip install {package})")

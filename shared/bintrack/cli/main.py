@@ -79,6 +79,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except BrokenPipeError:
         return 0
+    except ModuleNotFoundError as exc:
+        package = (exc.name or "").split(".")[0]
+        if not package or package == "bintrack":
+            raise
+        # e.g. the container image leaves out matplotlib and motmetrics, which no service uses
+        print(f"bintrack {args.command}: error: this needs the Python package {package}, which this "
+              f"installation leaves out (pip install {package})", file=sys.stderr)
+        return 2
     except OSError as exc:
         if exc.filename is None:
             raise
