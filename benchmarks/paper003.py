@@ -590,6 +590,37 @@ def run(runs: int, objects: int, restarts: int, sensors: int, jobs: int, out_dir
     return 0
 
 
+def run_bound(args: argparse.Namespace) -> int:
+    import paper003_bound as pb
+
+    try:
+        sets = [range(int(a), int(b) + 1) for a, b in (part.split("-") for part in args.bound.split(","))]
+    except ValueError:
+        print("--bound takes seed ranges A-B[,C-D]", file=sys.stderr)
+        return 2
+    jitter = max(float(j) for j in args.jitters.split(","))
+    summaries = []
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        for number, seeds in enumerate(sets):
+            jobs = [(seed, jitter, args.passes, args.lean, args.offset) for seed in seeds]
+            started = time.monotonic()
+            results = []
+            for done, r in enumerate(pool.map(pb.bound_run, jobs), 1):
+                results.append(r)
+                _progress(f"testbeds {seeds.start}-{seeds.stop - 1}", done, len(jobs), started)
+            print(file=sys.stderr)
+            label = ("choosing set" if number == 0 and len(sets) > 1 else "reported set")
+            pb.print_passes(results[0])
+            summaries.append(pb.summarise(results, f"{label}, seeds {seeds.start}–{seeds.stop - 1}, ±{jitter:g} s, "
+                                          f"--lean {args.lean:g} --offset {args.offset:g}"))
+            for kind in ("online", "at_close"):
+                print(f"{kind} entry error within 1.5× the bound from the passes so far (mean over testbeds) from "
+                      f"pass {pb.passes_near_bound(results, kind)} on")
+    if args.scaling:
+        pb.scaling(args.scaling, jitter)
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=100, help="simulations for Figs. 6 and 7 (default: %(default)s)")
@@ -611,7 +642,16 @@ def main() -> int:
     parser.add_argument("--scaling", type=int, default=200,
                         help="passes of the long testbed timed as passes accumulate; 0 skips it (default: %(default)s)")
     parser.add_argument("--testbeds-only", action="store_true", help="only the simulated testbeds and the scaling")
+    parser.add_argument("--bound", metavar="A-B,C-D",
+                        help="instead: errors per pass beside the bounds (benchmarks/paper003_bound.py) on testbeds "
+                        "with --lean 63 --offset 0.2 at the largest --jitters: seeds A-B (the set that chose), then "
+                        "C-D (the set reported), with --passes, and the time per pass on --scaling passes")
+    parser.add_argument("--lean", type=float, default=63.0, help="--bound: beams lean this ± 5° (default: %(default)s)")
+    parser.add_argument("--offset", type=float, default=0.2,
+                        help="--bound: light sensors ± this off their places, ft (default: %(default)s)")
     args = parser.parse_args()
+    if args.bound:
+        return run_bound(args)
     if args.quick:
         args.runs, args.objects, args.restarts, args.seeds, args.scaling = 10, 30, 20, 4, 60
     jitters = tuple(float(j) for j in args.jitters.split(","))

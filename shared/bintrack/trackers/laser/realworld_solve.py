@@ -35,8 +35,8 @@ XTOL = 1e-10
 @dataclass(frozen=True)
 class RealWorldSolution:
     """Beams (m × 2, units⁻¹), passes (n × 4: vx, cx, vy, cy at ``t_refs``; NaN where not
-    solved), residual variance s² (s²), and per solved pass its 4 × 4 covariance and the beams'
-    share of it (what better beams could still change)."""
+    solved), residual variance s² (s²), and per pass its 4 × 4 covariance and the beams' share
+    of it (what better beams could still change); zero for the ``fixed`` (exact) passes."""
 
     lines: np.ndarray
     passes: np.ndarray
@@ -152,5 +152,6 @@ def solve_real_world(times: np.ndarray, t_refs: np.ndarray, lines: np.ndarray, p
         total, share = joint_covariances(n, np.nan_to_num(w), problem.mask, 1.0, fixed, directions)
     except np.linalg.LinAlgError:
         return None
-    scale = lambda d: {l: variance * c for l, c in d.items()}  # noqa: E731
+    exact = {int(l): np.zeros((4, 4)) for l in fixed}
+    scale = lambda d: {**exact, **{l: variance * c for l, c in d.items()}}  # noqa: E731
     return RealWorldSolution(n, w, variance, scale(total), scale(share))

@@ -40,13 +40,9 @@ class Revisions:
         self.settled: set[int] = set()
         self.solution: RealWorldSolution | None = None
 
-    def _start(self, lines: np.ndarray) -> np.ndarray:
-        """Beams to start from: the last re-solve's where it had them, each moved onto its known
-        position's constraint n·q = 1; known beams as given."""
+    def _constrain(self, lines: np.ndarray) -> np.ndarray:
+        """Each beam moved onto its known position's constraint n·q = 1; known beams as given."""
         lines = lines.copy()
-        if self.solution is not None:
-            had = np.all(np.isfinite(self.solution.lines), axis=1)
-            lines[had] = self.solution.lines[had]
         for k, q in self.positions.items():
             q = np.asarray(q, dtype=float)
             lines[k] = lines[k] + (1.0 - lines[k] @ q) * q / (q @ q)
@@ -54,22 +50,48 @@ class Revisions:
             lines[k] = ab
         return lines
 
+    def _starts(self, times: np.ndarray, t_refs: np.ndarray, lines: np.ndarray,
+                fixed: Mapping[int, np.ndarray]) -> list[np.ndarray]:
+        """Beams to start from: the last re-solve's (phases 1–3's where it had none), and the
+        beams through the points where the calibration passes crossed them (and their known
+        positions) — a start that does not depend on phase 1."""
+        warm = lines.copy()
+        if self.solution is not None:
+            had = np.all(np.isfinite(self.solution.lines), axis=1)
+            warm[had] = self.solution.lines[had]
+        starts = [self._constrain(warm)]
+        through = warm.copy()
+        for k in range(len(lines)):
+            points = [w[[1, 3]] + w[[0, 2]] * (times[k, o] - t_refs[o]) for o, w in fixed.items()
+                      if np.isfinite(times[k, o])]
+            if k in self.positions:
+                points.append(np.asarray(self.positions[k], dtype=float))
+            if len(points) >= 2:
+                through[k] = np.linalg.lstsq(np.array(points), np.ones(len(points)), rcond=None)[0]
+        if fixed:
+            starts.append(self._constrain(through))
+        return starts
+
     def resolve(self, times: np.ndarray, t_refs: np.ndarray, lines: np.ndarray, passes: np.ndarray,
                 fixed: Mapping[int, np.ndarray]) -> RealWorldSolution | None:
         """Re-solve from phases 1–3's real-world ``lines`` (m × 2) and ``passes`` (n × 4 at
-        ``t_refs``; NaN rows not estimated); ``fixed`` maps a calibration pass to its exact w."""
+        ``t_refs``; NaN rows not estimated); ``fixed`` maps a calibration pass to its exact w.
+        Of the starts (:meth:`_starts`), the solution with the smallest residual variance is kept."""
         known = np.all(np.isfinite(lines), axis=1)
         if not known.all():
             return None  # a beam not estimated yet: nothing to revise with
-        start = self._start(lines)
         passes = passes.copy()
         for obj, w in fixed.items():
             passes[obj] = w
-        dirs = beam_directions(start, self.positions, tuple(self.known_beams))
-        solution = solve_real_world(times, t_refs, start, passes, tuple(fixed), dirs)
-        if solution is not None:
-            self.solution = solution
-        return solution
+        best = None
+        for start in self._starts(times, t_refs, lines, fixed):
+            dirs = beam_directions(start, self.positions, tuple(self.known_beams))
+            solution = solve_real_world(times, t_refs, start, passes, tuple(fixed), dirs)
+            if solution is not None and (best is None or solution.variance < best.variance):
+                best = solution
+        if best is not None:
+            self.solution = best
+        return best
 
     def estimate(self, obj: int, t_ref: float, first: LineObjectEstimate) -> tuple[LineObjectEstimate, float] | None:
         """Pass ``obj``'s estimate from the last re-solve (the fields of ``first`` it does not
