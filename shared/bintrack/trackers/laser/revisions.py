@@ -102,7 +102,8 @@ class Revisions:
             return None
         w = sol.passes[obj]
         span = border_times(w[[1, 3]], w[[0, 2]], t_ref, self.box)
-        jac = crossing_jacobian(w, t_ref, self.box)
+        exact = not np.any(sol.covariance[obj])  # a calibration pass: no uncertainty, no derivative needed
+        jac = (np.zeros((2, 4)), np.zeros((2, 4))) if exact else crossing_jacobian(w, t_ref, self.box)
         if span is None or jac is None:
             return None
         entry, exit_ = (w[[1, 3]] + w[[0, 2]] * (t - t_ref) for t in span)
