@@ -182,3 +182,20 @@ def test_the_map_keeps_the_latest_revision_of_each_object():
         assert state.apply(message_item(message))
     objects = state.snapshot()["objects"]
     assert [(o["n"], o["rev"], o["entry"][1]) for o in objects] == [(4, 1, 3.5), (5, 0, 3.0)]
+
+
+def test_eval_prints_final_and_online_figures_side_by_side(testbed, tmp_path, capsys):
+    import json
+
+    online, final = tmp_path / "online.csv", tmp_path / "final.csv"
+    assert cli.main(["track", str(testbed), "--tracker", "adaptive-basis", "--online", "--out", str(online)]) == 0
+    assert cli.main(["track", str(testbed), "--tracker", "adaptive-basis", "--out", str(final)]) == 0
+    capsys.readouterr()
+    assert cli.main(["eval", str(testbed), str(final), "--online", str(online), "--json"]) == 0
+    both = json.loads(capsys.readouterr().out)
+    assert both["final"]["entry_error_mean"] < both["online"]["entry_error_mean"]
+    assert cli.main(["eval", str(testbed), str(final), "--online", str(online)]) == 0
+    text = capsys.readouterr().out
+    row = next(line for line in text.splitlines() if line.startswith("entry point error, mean"))
+    shown = [float(v) for v in row.split()[-3:-1]]
+    assert shown == pytest.approx([both["final"]["entry_error_mean"], both["online"]["entry_error_mean"]], rel=1e-3)
