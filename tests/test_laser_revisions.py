@@ -199,3 +199,13 @@ def test_eval_prints_final_and_online_figures_side_by_side(testbed, tmp_path, ca
     row = next(line for line in text.splitlines() if line.startswith("entry point error, mean"))
     shown = [float(v) for v in row.split()[-3:-1]]
     assert shown == pytest.approx([both["final"]["entry_error_mean"], both["online"]["entry_error_mean"]], rel=1e-3)
+
+
+def test_ill_conditioned_calibration_passes_are_flagged(testbed):
+    deployment = open_dataset(testbed).deployment
+    assert AdaptiveBasisTracker(deployment).warnings == []
+    first, second = deployment.calibration.passes
+    flat = second.model_copy(update={"exit": (16.0, 1.0)})  # 3.6° from pass 1
+    bad = deployment.model_copy(update={"calibration": deployment.calibration.model_copy(update={"passes": [first, flat]})})
+    warnings = AdaptiveBasisTracker(bad).warnings
+    assert len(warnings) == 2 and "within 3.58° of parallel" in warnings[0] and "near one line" in warnings[1]

@@ -52,7 +52,13 @@ import numpy as np
 from bintrack.trackers.laser.adaptive_basis import PHASE2_METHODS, AdaptiveBasis
 from bintrack.trackers.laser.line_model import DegenerateError, border_times
 from bintrack.trackers.laser.phase1_closed_form import PHASE1_SENSORS
-from bintrack.trackers.laser.phase3_frame import Frame, collinear, frame_from_points, frame_from_sensors
+from bintrack.trackers.laser.phase3_frame import (
+    Frame,
+    calibration_conditioning,
+    collinear,
+    frame_from_points,
+    frame_from_sensors,
+)
 from bintrack.trackers.laser.revisions import Revisions
 from bintrack.errors import TrackerConfigError
 from bintrack.bus_payloads import LineObjectEstimate, Transition
@@ -113,7 +119,10 @@ class AdaptiveBasisTracker:
         self.frame_errors: dict[str, str] = {}  # the last reason each source failed, if it did
         self.frame_residual: float | None = None  # RMS misfit of the frame's known points, units
         self.frame_points: str = ""  # what the residual was measured on
-        self.warnings: list[str] = []
+        self.warnings: list[str] = [f"{NAME}: {reason}" for reason in
+                                    (calibration_conditioning(self.calibration) if "calibration" in self.frame_plan
+                                     else [])]
+        self._residual_warned = False
         self._frame_inputs: tuple = ("", [], None)  # what fixed the frame: for the uncertainty
         self._warn_after = FRAME_WARNING_PASSES
         self.skipped: list[int] = []
@@ -211,7 +220,8 @@ class AdaptiveBasisTracker:
         self.frame_residual = float(np.sqrt(np.mean(np.square(misfit)))) if misfit else None
         self.frame_points = what
         if (self.frame_residual is not None and self.frame_residual > FRAME_RESIDUAL_WARNING
-                and len(self.passes) >= self._warn_after and not self.warnings):
+                and len(self.passes) >= self._warn_after and not self._residual_warned):
+            self._residual_warned = True
             units = self.deployment.units
             self.warnings.append(
                 f"{NAME}: the real-world frame misfits {what} by {self.frame_residual:.3g} {units} RMS "
