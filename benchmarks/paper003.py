@@ -599,7 +599,6 @@ def run_bound(args: argparse.Namespace) -> int:
         print("--bound takes seed ranges A-B[,C-D]", file=sys.stderr)
         return 2
     jitter = max(float(j) for j in args.jitters.split(","))
-    summaries = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         for number, seeds in enumerate(sets):
             jobs = [(seed, jitter, args.passes, args.lean, args.offset) for seed in seeds]
@@ -611,13 +610,14 @@ def run_bound(args: argparse.Namespace) -> int:
             print(file=sys.stderr)
             label = ("choosing set" if number == 0 and len(sets) > 1 else "reported set")
             pb.print_passes(results[0])
-            summaries.append(pb.summarise(results, f"{label}, seeds {seeds.start}–{seeds.stop - 1}, ±{jitter:g} s, "
-                                          f"--lean {args.lean:g} --offset {args.offset:g}"))
+            pb.summarise(results, f"{label}, seeds {seeds.start}–{seeds.stop - 1}, ±{jitter:g} s, "
+                         f"--lean {args.lean:g} --offset {args.offset:g}")
+            pb.print_by_pass_range(results)
             for kind in ("online", "at_close"):
                 print(f"{kind} entry error within 1.5× the bound from the passes so far (mean over testbeds) from "
                       f"pass {pb.passes_near_bound(results, kind)} on")
-    if args.scaling:
-        pb.scaling(args.scaling, jitter)
+        if args.scaling:
+            pb.scaling(pool, args.scaling, jitter)
     return 0
 
 

@@ -28,7 +28,7 @@ FIRST_SCORED = 5
 BOX = (0.0, 0.0, 16.0, 8.0)
 
 
-def bound_run(job: tuple[int, float, int, float | None, float | None]) -> dict:
+def bound_run(job: tuple) -> dict:
     """One testbed: per pass (from pass 1) online and final entry/exit errors, the three bounds,
     and seconds per pass (the tracker's work when a pass completes, revisions included)."""
     from bintrack.evaluation.metrics import entry_exit_errors, truth_paths
@@ -38,7 +38,8 @@ def bound_run(job: tuple[int, float, int, float | None, float | None]) -> dict:
     from bintrack.trackers.laser.pass_bound import known_beams_bound, unknown_beams_bounds
     from bintrack.trackers.laser.tracker import AdaptiveBasisTracker
 
-    seed, jitter, passes, lean, offset = job
+    seed, jitter, passes, lean, offset, *rest = job
+    revise = rest[0] if rest else True
     options = {"passes": passes, "jitter": jitter, "lean": lean, "offset": offset}
     scenario = build_scenario("laser-testbed", seed, **options)
     lines = np.array([(s.a, s.b) for s in scenario.sensors])
@@ -53,7 +54,7 @@ def bound_run(job: tuple[int, float, int, float | None, float | None]) -> dict:
     sim = simulate("laser-testbed", seed, **options)
     with tempfile.TemporaryDirectory() as tmp:
         dataset = open_dataset(write_dataset(Path(tmp), sim.deployment, sim.events, sim.truth))
-        tracker = AdaptiveBasisTracker(dataset.deployment)
+        tracker = AdaptiveBasisTracker(dataset.deployment, revise=revise)
         seconds, at_close = [], {}
         close = tracker._close
 
@@ -123,6 +124,21 @@ def print_passes(result: dict) -> None:
         print(f"{l + 1:>4} {cells} {ratio[0]:5.2f}/{ratio[1]:<5.2f}")
 
 
+def print_by_pass_range(results: list[dict]) -> None:
+    """Entry error (mean over testbeds and the passes of a range) of the online, at-close and
+    final estimates beside the bounds: how many passes the estimates need to near the bound."""
+    n = results[0]["online"].shape[0]
+    edges = [e for e in (FIRST_SCORED, 9, 13, 21, 29) if e <= n] + [n + 1]
+    print("entry error by passes (ft, mean over testbeds and passes): ours online / at close / final; "
+          "bounds: beams from passes so far / from all passes / known; online ÷ bound so far")
+    for lo, hi in zip(edges, edges[1:]):
+        s = slice(lo - 1, hi - 1)
+        v = [np.nanmean([r[k][s, 0] for r in results]) for k in
+             ("online", "at_close", "final", "unknown_online", "unknown_final", "known")]
+        print(f"  passes {lo:>2}–{hi - 1:<2} " + " / ".join(f"{x:.3f}" for x in v[:3]) + "   "
+              + " / ".join(f"{x:.3f}" for x in v[3:]) + f"   {v[0] / v[3]:.2f}")
+
+
 def passes_near_bound(results: list[dict], kind: str = "online", factor: float = 1.5) -> int | None:
     """The first pass number from which the entry error of ``kind`` (online, at_close), averaged
     over testbeds, stays within ``factor`` × the bound with the beams from the passes so far."""
@@ -135,9 +151,14 @@ def passes_near_bound(results: list[dict], kind: str = "online", factor: float =
     return None
 
 
-def scaling(passes: int, jitter: float = 0.02) -> None:
-    """Seconds per pass (median by range of pass numbers) on one long testbed."""
-    r = bound_run((1, jitter, passes, 63.0, 0.2))
-    chunks = np.array_split(np.arange(FIRST_SCORED - 1, len(r["seconds"])), 5)
-    print(f"\ntime per pass, one testbed of {passes} passes (median ms by range of passes, revisions included):")
-    print("  ".join(f"{c[0] + 1}–{c[-1] + 1}: {np.median(r['seconds'][c]) * 1e3:.1f}" for c in chunks))
+def scaling(pool, passes: int, jitter: float = 0.02) -> None:
+    """Seconds per pass (median by range of pass numbers) on one long testbed, with the
+    revisions and without them (the online estimates alone: the tracker before revisions)."""
+    runs = list(pool.map(bound_run, [(1, jitter, passes, 63.0, 0.2, revise) for revise in (True, False)]))
+    chunks = np.array_split(np.arange(FIRST_SCORED - 1, passes), 5)
+    print(f"\ntime per pass, one testbed of {passes} passes, seed 1, run side by side (median ms by range of passes):")
+    print(f"{'passes':>22}" + "".join(f"{f'{c[0] + 1}–{c[-1] + 1}':>10}" for c in chunks))
+    for r, label in zip(runs, ("with revisions", "online only")):
+        print(f"{label:>22}" + "".join(f"{np.median(r['seconds'][c]) * 1e3:>10.1f}" for c in chunks))
+    ratio = [np.median(runs[0]["seconds"][c]) / np.median(runs[1]["seconds"][c]) for c in chunks]
+    print(f"{'ratio':>22}" + "".join(f"{x:>10.2f}" for x in ratio))
