@@ -139,18 +139,21 @@ def solve_real_world(times: np.ndarray, t_refs: np.ndarray, lines: np.ndarray, p
     if dof <= 0:
         return None
     try:
-        x0 = np.zeros(int(problem.offsets[-1]))
-        if len(x0):
-            res = least_squares(problem.residuals, x0, jac=problem.jacobian, method="lm", xtol=XTOL)
-            x = res.x
-        else:
-            x = x0
-        n, w = problem._eval(x)
-        r = problem.residuals(x)
-        variance = float(r @ r) / dof
-        w = np.where(problem.mask.any(0)[:, None] & np.all(np.isfinite(passes), axis=1)[:, None], w, np.nan)
-        total, share = joint_covariances(n, np.nan_to_num(w), problem.mask, 1.0, fixed, directions)
-    except np.linalg.LinAlgError:
+        with np.errstate(all="ignore"):
+            x0 = np.zeros(int(problem.offsets[-1]))
+            if len(x0):
+                res = least_squares(problem.residuals, x0, jac=problem.jacobian, method="lm", xtol=XTOL)
+                x = res.x
+            else:
+                x = x0
+            n, w = problem._eval(x)
+            r = problem.residuals(x)
+            variance = float(r @ r) / dof
+            w = np.where(problem.mask.any(0)[:, None] & np.all(np.isfinite(passes), axis=1)[:, None], w, np.nan)
+            total, share = joint_covariances(n, np.nan_to_num(w), problem.mask, 1.0, fixed, directions)
+    except (np.linalg.LinAlgError, ValueError):  # singular, or not finite (a degenerate start)
+        return None
+    if not np.isfinite(variance):
         return None
     exact = {int(l): np.zeros((4, 4)) for l in fixed}
     scale = lambda d: {**exact, **{l: variance * c for l, c in d.items()}}  # noqa: E731

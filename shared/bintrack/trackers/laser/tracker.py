@@ -32,7 +32,9 @@ estimated beam). A residual above :data:`FRAME_RESIDUAL_WARNING` adds one warnin
 all this.
 
 Output: one :class:`LineObjectEstimate` per pass, in pass order, each exactly once — the passes
-before phase 1 all at once when phase 1 succeeds, later ones when they complete. ``t_first`` and
+before phase 1 all at once when phase 1 succeeds, later ones when they complete — and then, with
+``revise`` (default), revised estimates of passes already given (``revision`` 1, 2, …;
+:mod:`.revisions`), after each pass and at the end of the stream (``flush(inf)``). ``t_first`` and
 ``t_last`` are the pass's first and last detection times (s); entry and exit are where the
 estimated straight path crosses the region's border (units; the positions at the first and last
 detection if the path misses the region); ``vx``, ``vy`` its real-world velocity (units/s, equal
@@ -132,6 +134,13 @@ class AdaptiveBasisTracker:
         self._emitted = 0
         self.revisions = Revisions(self.positions, self.known_beams, self._box) if revise else None
         self._finished = False
+
+    def __setstate__(self, state: dict) -> None:
+        """A checkpoint pickled before the revisions existed resumes as that version ran: without them."""
+        state.setdefault("revisions", None)
+        state.setdefault("_finished", False)
+        state.setdefault("_residual_warned", bool(state.get("warnings")))
+        self.__dict__.update(state)
 
     # ---------------------------------------------------------------- phase 3 plan
 
