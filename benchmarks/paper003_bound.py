@@ -156,7 +156,7 @@ def scaling(pool, passes: int, jitter: float = 0.02) -> None:
     revisions and without them (the online estimates alone: the tracker before revisions)."""
     runs = list(pool.map(bound_run, [(1, jitter, passes, 63.0, 0.2, revise) for revise in (True, False)]))
     chunks = np.array_split(np.arange(FIRST_SCORED - 1, passes), 5)
-    print(f"\ntime per pass, one testbed of {passes} passes, seed 1, run side by side (median ms by range of passes):")
+    print(f"\ntime per pass, one testbed of {passes} passes, seed 1, in one run (median ms by range of passes):")
     print(f"{'passes':>22}" + "".join(f"{f'{c[0] + 1}–{c[-1] + 1}':>10}" for c in chunks))
     for r, label in zip(runs, ("with revisions", "online only")):
         print(f"{label:>22}" + "".join(f"{np.median(r['seconds'][c]) * 1e3:>10.1f}" for c in chunks))
