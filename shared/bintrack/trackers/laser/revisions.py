@@ -1,8 +1,9 @@
-"""Revised estimates of past passes (issue: passes re-solved once the beams are sharpened).
+"""Revised estimates of past passes: every pass re-solved once later passes sharpen the beams.
 
 After every pass the tracker's state (phases 1–3) is re-solved in real-world coordinates
 (:mod:`.realworld_solve`: time residuals, calibration passes and known positions held exact),
-warm-started from the previous re-solve's beams. A pass already published gets a revised
+from the previous re-solve's beams and from the beams through the calibration passes' crossing
+points; the solution of smaller residual variance is kept. A pass already published gets a revised
 ``LineObjectEstimate`` (``revision`` 1, 2, …) when its entry or exit point has moved by more than
 the standard deviation it was last published with. A pass is *settled* — never checked again —
 once the beams' share of its entry and exit covariance allows no move above
