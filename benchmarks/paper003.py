@@ -15,6 +15,10 @@
   and exit errors of passes 4–32 (mean, max, histogram) and the beams, tracks and estimates of
   passes 4, 13, 22 and 31.
 
+* **Bounds** (``--bound A-B,C-D``, :mod:`paper003_bound`): on testbeds in the paper's setting
+  (``--lean 63 --offset 0.2``), every pass's online and final errors beside the lower bounds
+  with the beams known and estimated, choosing on seeds A–B and reporting on C–D.
+
 Run: ``nice -n 5 .venv/bin/python benchmarks/paper003.py [--runs 100] [--restarts 100] [--jobs 2] [--quick]``
 (≈ 3 min on two cores; ``--quick`` ≈ 10 s). PNGs go to ``docs/``.
 """
@@ -180,7 +184,7 @@ def testbed_run(job: tuple[int, float, int, str]) -> dict:
     sim = simulate("laser-testbed", seed, passes=passes, jitter=jitter)
     with tempfile.TemporaryDirectory() as tmp:
         dataset = open_dataset(write_dataset(Path(tmp), sim.deployment, sim.events, sim.truth))
-        tracker = AdaptiveBasisTracker(dataset.deployment, phase2=phase2)
+        tracker = AdaptiveBasisTracker(dataset.deployment, phase2=phase2, revise=False)  # online estimates
         seconds = []
         close = tracker._close
 
@@ -274,7 +278,7 @@ def starts_run(job: tuple[int, float]) -> list[tuple[int, int, int, int]]:
 
     seed, jitter = job
     sim = simulate("laser-testbed", seed, passes=max(STARTS_AT), jitter=jitter)
-    tracker = AdaptiveBasisTracker(sim.deployment)
+    tracker = AdaptiveBasisTracker(sim.deployment, revise=False)
     detector, driver = TransitionDetector(sim.deployment), TrackerDriver(tracker)
     for event in sim.events:
         transition = detector.update(event)
@@ -347,7 +351,7 @@ def testbed(folder: Path) -> dict:
     from bintrack.trackers.laser.tracker import AdaptiveBasisTracker
 
     dataset = open_dataset(folder)
-    tracker = AdaptiveBasisTracker(dataset.deployment)
+    tracker = AdaptiveBasisTracker(dataset.deployment, revise=False)  # online estimates, as Figs. 10–11 show
     started = time.perf_counter()
     rows = output_objects(run_tracker(dataset, tracker))
     elapsed = time.perf_counter() - started
@@ -590,6 +594,38 @@ def run(runs: int, objects: int, restarts: int, sensors: int, jobs: int, out_dir
     return 0
 
 
+def run_bound(args: argparse.Namespace) -> int:
+    import paper003_bound as pb
+
+    try:
+        sets = [range(int(a), int(b) + 1) for a, b in (part.split("-") for part in args.bound.split(","))]
+    except ValueError:
+        print("--bound takes seed ranges A-B[,C-D]", file=sys.stderr)
+        return 2
+    jitter = max(float(j) for j in args.jitters.split(","))
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        for number, seeds in enumerate(sets):
+            jobs = [(seed, jitter, args.passes, args.lean, args.offset) for seed in seeds]
+            started = time.monotonic()
+            results = []
+            for done, r in enumerate(pool.map(pb.bound_run, jobs), 1):
+                results.append(r)
+                _progress(f"testbeds {seeds.start}-{seeds.stop - 1}", done, len(jobs), started)
+            print(file=sys.stderr)
+            label = ("choosing set" if number == 0 and len(sets) > 1 else "reported set")
+            pb.print_passes(results[0])
+            pb.summarise(results, f"{label}, seeds {seeds.start}–{seeds.stop - 1}, ±{jitter:g} s, "
+                         f"--lean {args.lean:g} --offset {args.offset:g}")
+            pb.print_by_pass_range(results)
+            for kind in ("online", "at_close"):
+                near = pb.passes_near_bound(results, kind)
+                print(f"{kind} entry error (mean over testbeds) within 1.5× the bound from the passes so far: "
+                      + ("never from pass 5 on" if near is None else f"from pass {near} on"))
+        if args.scaling:
+            pb.scaling(pool, args.scaling, jitter)
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=100, help="simulations for Figs. 6 and 7 (default: %(default)s)")
@@ -611,7 +647,16 @@ def main() -> int:
     parser.add_argument("--scaling", type=int, default=200,
                         help="passes of the long testbed timed as passes accumulate; 0 skips it (default: %(default)s)")
     parser.add_argument("--testbeds-only", action="store_true", help="only the simulated testbeds and the scaling")
+    parser.add_argument("--bound", metavar="A-B,C-D",
+                        help="instead: errors per pass beside the bounds (benchmarks/paper003_bound.py) on testbeds "
+                        "with --lean 63 --offset 0.2 at the largest --jitters: seeds A-B (the set that chose), then "
+                        "C-D (the set reported), with --passes, and the time per pass on --scaling passes")
+    parser.add_argument("--lean", type=float, default=63.0, help="--bound: beams lean this ± 5° (default: %(default)s)")
+    parser.add_argument("--offset", type=float, default=0.2,
+                        help="--bound: light sensors ± this off their places, ft (default: %(default)s)")
     args = parser.parse_args()
+    if args.bound:
+        return run_bound(args)
     if args.quick:
         args.runs, args.objects, args.restarts, args.seeds, args.scaling = 10, 30, 20, 4, 60
     jitters = tuple(float(j) for j in args.jitters.split(","))

@@ -253,7 +253,8 @@ def test_tracker_on_the_laser_testbed(testbed):
     dataset, events, truth = testbed
     tracker = AdaptiveBasisTracker(dataset.deployment)
     out = list(run_tracker(dataset, tracker))
-    assert [o.object for o in out] == list(range(1, 33))
+    # each pass once as first estimated, in order (revisions, test_laser_revisions.py, come after)
+    assert [o.object for o in out if o.revision is None] == list(range(1, 33))
     # the light sensors all stand on y = 0: the calibration passes fix the frame
     assert tracker.frame_source == "calibration" and "lie on one line" in tracker.frame_reason
     assert tracker.gap == pytest.approx(0.5 * (12.374946679937437 - 1.0))
@@ -294,10 +295,11 @@ def test_tracker_emits_the_first_four_passes_together_then_one_per_pass(testbed)
     tracker = AdaptiveBasisTracker(dataset.deployment)
     emitted = []
     for tr in _transitions(dataset.deployment, events[:36]):
-        emitted.append([o.object for o in tracker.update(tr)])
+        emitted.append([o.object for o in tracker.update(tr) if o.revision is None])
     got = [e for e in emitted if e]
     assert got == [[1, 2, 3, 4], [5], [6]]  # each pass complete when all six beams have fired
-    assert tracker.flush(math.inf) == []
+    # the end of the stream closes no pass; it may only revise the passes given
+    assert all(o.revision and o.object <= 6 for o in tracker.flush(math.inf))
 
 
 def test_tracker_closes_a_pass_with_a_missed_sensor_after_the_gap(testbed):
@@ -313,7 +315,7 @@ def test_tracker_closes_a_pass_with_a_missed_sensor_after_the_gap(testbed):
         if 5 in [o.object for o in out]:
             break
     # pass 5 lacks L6: it ends only when the next pass begins with L1 (rule 2)
-    assert out[-1].object == 5 and tr.sensor == "L1" and tr.t > truth["6"].start
+    assert [o for o in out if o.revision is None][-1].object == 5 and tr.sensor == "L1" and tr.t > truth["6"].start
     # … or, at the end of the stream, once the gap has elapsed
     tracker = AdaptiveBasisTracker(dataset.deployment)
     last = [tr for tr in transitions if tr.t <= truth["5"].end]

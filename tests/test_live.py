@@ -120,6 +120,13 @@ def test_live_equals_offline_for_the_adaptive_basis_on_the_laser_testbed(tmp_pat
     expected = read_objects(offline)
     assert len(expected) == 32
     assert read_objects(exported) == expected
+    # every estimate, the revisions included, as the tracker gives them offline
+    ds = open_dataset(LASER)
+    offline_messages = [m for m in run_tracker(ds, make_tracker("adaptive-basis", ds.deployment))]
+    live_messages = [m for _, m in open_recording(recording).messages({"laser_objects"})]
+    key = lambda m: (m.object, m.revision or 0)  # noqa: E731
+    assert any(m.revision for m in offline_messages)
+    assert sorted(live_messages, key=key) == sorted(offline_messages, key=key)
 
 
 @pytest.mark.slow

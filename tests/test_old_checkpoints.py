@@ -62,7 +62,10 @@ def test_a_checkpoint_of_the_version_before_the_moves_resumes_exactly(old_checkp
     events = list(dataset.events())
     n = saved["events"]
     assert 0 < n < len(events)
-    detector, driver = TransitionDetector(dataset.deployment), TrackerDriver(make_tracker(name, dataset.deployment, options))
+    tracker = make_tracker(name, dataset.deployment, options)
+    if name == "adaptive-basis":
+        tracker.revisions = None  # the checkpoint's version made no revisions: it resumes without them
+    detector, driver = TransitionDetector(dataset.deployment), TrackerDriver(tracker)
     _feed(detector, driver, events[:n])
     expected = _feed(detector, driver, events[n:]) + driver.finish()
     resumed = _feed(saved["detector"], saved["driver"], events[n:]) + saved["driver"].finish()

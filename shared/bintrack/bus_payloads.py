@@ -108,6 +108,8 @@ class LineObjectEstimate(Message):
                                    "(√ trace of its covariance; None if unknown)")
     exit_sd: float | None = Field(default=None, ge=0, description="standard deviation of the exit point, units "
                                   "(√ trace of its covariance; None if unknown)")
+    revision: int | None = Field(default=None, ge=1, description="1, 2, … for a revised estimate of a pass already "
+                                 "published (the latest counts); None for the first estimate")
 
 
 class VelocityEstimate(Message):

@@ -107,11 +107,16 @@ def output_rows(outputs: Iterable[Message]) -> Iterator[TrackRow]:
             yield TrackRow(out.t, SINGLE_TARGET_TRACK, out.x, out.y, out.vx, out.vy)
 
 
-def output_objects(outputs: Iterable[Message]) -> list[ObjectRow]:
-    """objects.csv rows of tracker outputs: the last ``LineObjectEstimate`` of each object (a
-    later estimate of a pass refines an earlier one), by object number."""
+def output_objects(outputs: Iterable[Message], *, online: bool = False) -> list[ObjectRow]:
+    """objects.csv rows of tracker outputs, by object number: the latest revision of each object
+    (the highest ``revision``; of equals, the last — a later estimate of a pass refines an
+    earlier one); ``online``: each object's first estimate (no ``revision``), what was known when
+    the pass ended."""
     latest: dict[int, LineObjectEstimate] = {}
     for out in outputs:
-        if isinstance(out, LineObjectEstimate):
+        if not isinstance(out, LineObjectEstimate) or (online and out.revision is not None):
+            continue
+        have = latest.get(out.object)
+        if have is None or (out.revision or 0) >= (have.revision or 0):
             latest[out.object] = out
     return [ObjectRow(*(getattr(m, f) for f in ObjectRow._fields)) for _, m in sorted(latest.items())]

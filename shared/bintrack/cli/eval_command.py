@@ -27,6 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--area", type=area_type, metavar="XMIN,YMIN,XMAX,YMAX",
                         help="score only targets and tracks inside this tracking area, dataset units")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+    parser.add_argument("--online", metavar="OBJECTS.csv",
+                        help="also score this objects.csv (bintrack track --online: each object as first estimated) "
+                        "and print its figures beside RESULT's (the final estimates); JSON: {\"final\": …, \"online\": …}")
 
 def run(args: argparse.Namespace) -> int:
     dataset = open_dataset(args.dir)
@@ -34,8 +37,18 @@ def run(args: argparse.Namespace) -> int:
         output_file(args.plot, what="plot")
     evaluation = evaluate(dataset, args.result, gospa_c=args.gospa_c, hit=args.hit, matching=args.matching,
                           area=args.area)
+    online = None
+    if args.online is not None:
+        online = evaluate(dataset, args.online, gospa_c=args.gospa_c, hit=args.hit, matching=args.matching,
+                          area=args.area)
+        if evaluation.mode != "objects" or online.mode != "objects":
+            raise CommandError("--online compares two objects.csv files (adaptive-basis); "
+                               f"{args.result if evaluation.mode != 'objects' else args.online} is a tracks.csv")
     if args.json:
-        print(json.dumps(evaluation.as_dict()))
+        print(json.dumps(evaluation.as_dict() if online is None else
+                         {"final": evaluation.as_dict(), "online": online.as_dict()}))
+    elif online is not None:
+        print("\n".join(evaluation.beside(online, ("final", "online"))))
     else:
         print("\n".join(evaluation.lines()))
     if args.plot:

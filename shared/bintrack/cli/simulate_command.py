@@ -32,6 +32,8 @@ OPTIONS = (
     ("people", int, "N", "people walking through the field (darpa-grid)"),
     ("passes", int, "N", "car passes (laser-testbed)"),
     ("jitter", float, "S", "detection-time noise U[-S, S], s (laser-testbed; default 0.01)"),
+    ("lean", float, "DEG", "beams lean DEG ± 5° (laser-testbed; default 55-70°)"),
+    ("offset", float, "FT", "light sensors within ± FT of evenly spaced places (laser-testbed; default 0.32)"),
     ("period", float, "S", "sampling period, s (default: event-driven for uniform-800 and sector-300)"),
     ("pd", float, "P", "detection probability per sample (needs --period)"),
     ("pfa", float, "P", "false-alarm probability per sample (needs --period)"),

@@ -31,6 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_tracker_arguments(parser)
     parser.add_argument("--beams", metavar="FILE.csv",
                         help="adaptive-basis: also write the estimated beams a·x + b·y = 1 (sensor,a,b; units⁻¹)")
+    parser.add_argument("--online", action="store_true",
+                        help="adaptive-basis: write each object as first estimated, when its pass ended (default: its "
+                        "latest revision, re-solved with the beams as sharpened by every later pass)")
     parser.add_argument("--regions", action="store_true",
                         help="mcmcda: run a tracker per region of deployment.json (its sensors and a border band two "
                         "sensing ranges wide) and merge them, as the region base stations and the merge service do")
@@ -41,6 +44,9 @@ def run(args: argparse.Namespace) -> int:
     beams = getattr(args, "beams", None)
     if beams is not None and args.tracker not in OBJECT_TRACKERS:
         raise CommandError(f"--beams: tracker {args.tracker} does not estimate beams (adaptive-basis does)")
+    online = getattr(args, "online", False)
+    if online and args.tracker not in OBJECT_TRACKERS:
+        raise CommandError(f"--online: tracker {args.tracker} does not revise its estimates (adaptive-basis does)")
     dataset = open_dataset(args.dataset)
     if args.out not in (None, "-"):
         output_file(args.out)
@@ -59,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     outputs = run_tracker(dataset, tracker, on_event=progress.update)
     target = sys.stdout if out == "-" else out
     try:
-        count = write_objects(target, output_objects(outputs)) if objects else write_tracks(target, output_rows(outputs))
+        count = write_objects(target, output_objects(outputs, online=online)) if objects else write_tracks(target, output_rows(outputs))
     finally:
         progress.close()
     print(f"{count} {'objects' if objects else 'estimates'} by {args.tracker} written to {out}", file=sys.stderr)

@@ -107,6 +107,21 @@ class Evaluation:
             out.append(f"{figure.label:<{label_width}}  {text:>{value_width}} {figure.unit}".rstrip())
         return out
 
+    def beside(self, other: "Evaluation", names: tuple[str, str]) -> list[str]:
+        """This evaluation's figures and ``other``'s (the same kind of result scored the same
+        way) in two columns headed ``names``, e.g. ('final', 'online')."""
+        head = [("dataset", str(self.dataset)), (f"result, {names[0]}", f"{self.result} ({_MODE_TEXT[self.mode]})"),
+                (f"result, {names[1]}", f"{other.result} ({_MODE_TEXT[other.mode]})")]
+        labels = [f.label for f in self.figures]
+        width = max(len(label) for label in labels + [h for h, _ in head])
+        cells = [(_text(a.value), _text(b.value)) for a, b in zip(self.figures, other.figures)]
+        value_width = max(len(v) for pair in cells for v in pair + names)
+        out = [f"{label:<{width}}  {text}" for label, text in head]
+        out.append(f"{'':<{width}}  {names[0]:>{value_width}} {names[1]:>{value_width}}")
+        for figure, (a, b) in zip(self.figures, cells):
+            out.append(f"{figure.label:<{width}}  {a:>{value_width}} {b:>{value_width}} {figure.unit}".rstrip())
+        return out
+
     def as_dict(self) -> dict:
         """The figures keyed by ``Figure.key`` after dataset, result, kind, mode and units;
         JSON-ready (None where a figure cannot be computed)."""

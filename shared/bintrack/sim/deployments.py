@@ -78,13 +78,14 @@ def beam(x_sensor: float, y_sensor: float, x_laser: float, y_laser: float) -> tu
 
 
 def laser_track(rng: np.random.Generator, length: float, width: float, count: int = 6,
-                angles: tuple[float, float] = (55.0, 70.0)) -> list[LineSensor]:
+                angles: tuple[float, float] = (55.0, 70.0), offset: float | None = None) -> list[LineSensor]:
     """``count`` laser/light-sensor pairs across a track [0, length] × [0, width] (paper 003 §7.1).
 
     Light sensors stand along y = 0, spread along the track with jitter, lasers along
     y = width. The first half of the beams lean right and the rest left, each at an acute angle
     to the x axis drawn in its own stratum of ``angles`` (degrees), so no two are parallel and
-    every beam spans the track from side to side. Ids L1..Lcount; x, y is the light sensor;
+    every beam spans the track from side to side. Light sensors stand within ±``offset`` units of
+    evenly spaced places (default ±2 % of the length). Ids L1..Lcount; x, y is the light sensor;
     a, b the true beam (for simulation; not published)."""
     lo, hi = math.radians(angles[0]), math.radians(angles[1])
     right = (count + 1) // 2
@@ -95,7 +96,7 @@ def laser_track(rng: np.random.Generator, length: float, width: float, count: in
         group, rank, size = (0, k, right) if k < right else (1, k - right, count - right)
         theta = lo + (rank + rng.uniform(0.2, 0.8)) * (hi - lo) / size
         run = width / math.tan(theta)
-        xs = slots[k] + rng.uniform(-0.02, 0.02) * length
+        xs = slots[k] + (rng.uniform(-0.02, 0.02) * length if offset is None else rng.uniform(-offset, offset))
         xs = min(max(xs, 0.02 * length), length - margin) if group == 0 else min(max(xs, margin), 0.98 * length)
         xs = round(xs, 2)
         xl = round(xs + run if group == 0 else xs - run, 2)

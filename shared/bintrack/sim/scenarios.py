@@ -277,21 +277,28 @@ def darpa_grid(seed: int = 0, *, people: int = 3, sensing_range: float = 8.0, pd
 TRACK = Region(xmin=0, ymin=0, xmax=16, ymax=8)
 CAR_SPEED = 1.41
 DETECTION_NOISE = 0.01
+LEAN_SPREAD = 5.0  # degrees either side of --lean
 
 
 def laser_testbed(seed: int = 0, *, passes: int = 32, speed: float = CAR_SPEED,
-                  jitter: float = DETECTION_NOISE) -> Scenario:
+                  jitter: float = DETECTION_NOISE, lean: float | None = None, offset: float | None = None) -> Scenario:
     """Paper 003 §7.1: a 16 × 8 ft track crossed by 6 laser beams (light sensors along y = 0,
     lasers along y = 8, beams at 55–70° to the track, none parallel); a car at ``speed`` ft/s
     (±5 % per pass) makes ``passes`` straight passes from the left edge x = 0 to the right edge
     x = 16, 2–6 s apart. Pass 1 goes (0, 0) → (16, 0) and pass 2 (0, 0) → (16, 8); both are
     the deployment's calibration passes. Detection times carry U[−``jitter``, ``jitter``] s
-    noise (default 0.01 s). The published sensors give the light-sensor position only, not the beam."""
+    noise (default 0.01 s). ``lean`` (degrees): the beams lean ``lean`` ± 5° instead of 55–70°
+    (paper 003 §6: ≈ 63°); ``offset`` (ft): light sensors within ± ``offset`` of evenly spaced
+    places (default ± 0.32 ft). The published sensors give the light-sensor position only, not the beam."""
     _check(passes >= 2, f"--passes must be at least 2 (passes 1 and 2 calibrate), got {passes}")
     _positive("speed", speed)
     _check(math.isfinite(jitter) and jitter >= 0, f"--jitter must be a non-negative number of seconds, got {jitter}")
+    _check(lean is None or LEAN_SPREAD < lean < 90 - LEAN_SPREAD,
+           f"--lean must be between {LEAN_SPREAD:g} and {90 - LEAN_SPREAD:g} degrees, got {lean}")
+    _check(offset is None or (math.isfinite(offset) and offset >= 0), f"--offset must be ≥ 0 ft, got {offset}")
     layout, paths = _streams(seed, 2)
-    sensors = deployments.laser_track(layout, TRACK.width, TRACK.height)
+    angles = (55.0, 70.0) if lean is None else (lean - LEAN_SPREAD, lean + LEAN_SPREAD)
+    sensors = deployments.laser_track(layout, TRACK.width, TRACK.height, angles=angles, offset=offset)
     published = [LineSensor(id=s.id, x=s.x, y=s.y) for s in sensors]
     runs = []
     ends = []

@@ -71,7 +71,7 @@ def message_item(message: Message) -> Item | None:
     if isinstance(message, LineObjectEstimate):
         return {"k": "object", "t": message.t_last, "n": message.object, "t0": message.t_first,
                 "entry": [_r(message.entry_x), _r(message.entry_y)], "exit": [_r(message.exit_x), _r(message.exit_y)],
-                "v": [_r(message.vx), _r(message.vy)]}
+                "v": [_r(message.vx), _r(message.vy)], "rev": message.revision or 0}
     if isinstance(message, VelocityEstimate):
         position = None if message.x is None or message.y is None else [_r(message.x), _r(message.y)]
         return {"k": "velocity", "t": message.t, "method": message.method, "v": [_r(message.vx), _r(message.vy)],

@@ -73,7 +73,7 @@ class MapState:
                 return False
             self.estimates[item["node"]] = item
         elif kind == "object":
-            self.objects.append(item)
+            self._object(item)
         elif kind == "velocity":
             self.velocity = item
         elif kind == "truth":
@@ -86,6 +86,15 @@ class MapState:
             self.t = t
         self._trim()
         return True
+
+    def _object(self, item: dict) -> None:
+        """Keep a laser object's latest revision: a revision replaces its earlier estimate in place."""
+        for i, have in enumerate(self.objects):
+            if have.get("n") == item.get("n"):
+                if item.get("rev", 0) >= have.get("rev", 0):
+                    self.objects[i] = item
+                return
+        self.objects.append(item)
 
     def _bounded(self, table: OrderedDict, key: str) -> bool:
         if self._known is not None:

@@ -92,6 +92,40 @@ def frame_from_points(pairs: Iterable[tuple[Sequence[float], Sequence[float]]]) 
     return _affine_unknowns(rows, rhs, "calibration", "calibration passes")
 
 
+CALIBRATION_ANGLE_MIN = 10.0  # degrees between the calibration passes' directions
+CALIBRATION_SPREAD_MIN = 0.1  # smaller over larger principal spread of their entry and exit points
+
+
+def calibration_conditioning(passes: Sequence) -> list[str]:
+    """Why calibration ``passes`` (each with ``pass_``, ``entry``, ``exit``, units) fix the frame
+    of eqs. 32–33 poorly, one line per reason (empty if they do not): the widest angle between
+    two passes is below :data:`CALIBRATION_ANGLE_MIN` degrees (near-parallel passes leave the
+    frame's shear to the detection noise), or their entry and exit points lie near one line
+    (smaller principal spread below :data:`CALIBRATION_SPREAD_MIN` of the larger). Rules of
+    thumb: the figures are not measured optima."""
+    if len(passes) < 2:
+        return []
+    names = ", ".join(str(p.pass_) for p in passes)
+    out = []
+    directions = [np.subtract(p.exit, p.entry, dtype=float) for p in passes]
+    widest = 0.0
+    for i, u in enumerate(directions):
+        for v in directions[i + 1:]:
+            cos = abs(float(u @ v)) / max(float(np.linalg.norm(u) * np.linalg.norm(v)), 1e-300)
+            widest = max(widest, float(np.degrees(np.arccos(min(cos, 1.0)))))
+    if widest < CALIBRATION_ANGLE_MIN:
+        out.append(f"calibration passes {names} are within {widest:.3g}° of parallel (below "
+                   f"{CALIBRATION_ANGLE_MIN:g}°): the real-world frame they fix is ill-conditioned; "
+                   "add a calibration pass across them")
+    points = np.array([q for p in passes for q in (p.entry, p.exit)], dtype=float)
+    s = np.linalg.svd(points - points.mean(0), compute_uv=False)
+    ratio = float(s[1] / s[0]) if s[0] > 0 else 0.0
+    if ratio < CALIBRATION_SPREAD_MIN:
+        out.append(f"the entry and exit points of calibration passes {names} lie near one line (spread ratio "
+                   f"{ratio:.2g}, below {CALIBRATION_SPREAD_MIN:g}): the real-world frame they fix is ill-conditioned")
+    return out
+
+
 def collinear(points: Sequence[Sequence[float]], rtol: float = 1e-3) -> bool:
     """Whether ``points`` (units) lie on one line (or fewer than three distinct points): the smaller
     principal spread is below ``rtol`` of the larger."""

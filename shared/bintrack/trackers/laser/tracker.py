@@ -32,7 +32,9 @@ estimated beam). A residual above :data:`FRAME_RESIDUAL_WARNING` adds one warnin
 all this.
 
 Output: one :class:`LineObjectEstimate` per pass, in pass order, each exactly once — the passes
-before phase 1 all at once when phase 1 succeeds, later ones when they complete. ``t_first`` and
+before phase 1 all at once when phase 1 succeeds, later ones when they complete — and then, with
+``revise`` (default), revised estimates of passes already given (``revision`` 1, 2, …;
+:mod:`.revisions`), after each pass and at the end of the stream (``flush(inf)``). ``t_first`` and
 ``t_last`` are the pass's first and last detection times (s); entry and exit are where the
 estimated straight path crosses the region's border (units; the positions at the first and last
 detection if the path misses the region); ``vx``, ``vy`` its real-world velocity (units/s, equal
@@ -52,7 +54,14 @@ import numpy as np
 from bintrack.trackers.laser.adaptive_basis import PHASE2_METHODS, AdaptiveBasis
 from bintrack.trackers.laser.line_model import DegenerateError, border_times
 from bintrack.trackers.laser.phase1_closed_form import PHASE1_SENSORS
-from bintrack.trackers.laser.phase3_frame import Frame, collinear, frame_from_points, frame_from_sensors
+from bintrack.trackers.laser.phase3_frame import (
+    Frame,
+    calibration_conditioning,
+    collinear,
+    frame_from_points,
+    frame_from_sensors,
+)
+from bintrack.trackers.laser.revisions import Revisions
 from bintrack.errors import TrackerConfigError
 from bintrack.bus_payloads import LineObjectEstimate, Transition
 from bintrack.deployment_model import Deployment, LineSensor
@@ -77,7 +86,7 @@ class AdaptiveBasisTracker:
     name = NAME
 
     def __init__(self, deployment: Deployment, *, iterations: int = 5, gap: float | None = None,
-                 phase2: str = "lsq"):
+                 phase2: str = "lsq", revise: bool = True):
         sensors = [s for s in deployment.sensors if isinstance(s, LineSensor)]
         if not sensors:
             raise TrackerConfigError(f"tracker {NAME} needs line sensors; this deployment has none")
@@ -112,7 +121,10 @@ class AdaptiveBasisTracker:
         self.frame_errors: dict[str, str] = {}  # the last reason each source failed, if it did
         self.frame_residual: float | None = None  # RMS misfit of the frame's known points, units
         self.frame_points: str = ""  # what the residual was measured on
-        self.warnings: list[str] = []
+        self.warnings: list[str] = [f"{NAME}: {reason}" for reason in
+                                    (calibration_conditioning(self.calibration) if "calibration" in self.frame_plan
+                                     else [])]
+        self._residual_warned = False
         self._frame_inputs: tuple = ("", [], None)  # what fixed the frame: for the uncertainty
         self._warn_after = FRAME_WARNING_PASSES
         self.skipped: list[int] = []
@@ -120,6 +132,15 @@ class AdaptiveBasisTracker:
         self._current: dict[int, float] = {}
         self._last = -math.inf
         self._emitted = 0
+        self.revisions = Revisions(self.positions, self.known_beams, self._box) if revise else None
+        self._finished = False
+
+    def __setstate__(self, state: dict) -> None:
+        """A checkpoint pickled before the revisions existed resumes as that version ran: without them."""
+        state.setdefault("revisions", None)
+        state.setdefault("_finished", False)
+        state.setdefault("_residual_warned", bool(state.get("warnings")))
+        self.__dict__.update(state)
 
     # ---------------------------------------------------------------- phase 3 plan
 
@@ -208,7 +229,8 @@ class AdaptiveBasisTracker:
         self.frame_residual = float(np.sqrt(np.mean(np.square(misfit)))) if misfit else None
         self.frame_points = what
         if (self.frame_residual is not None and self.frame_residual > FRAME_RESIDUAL_WARNING
-                and len(self.passes) >= self._warn_after and not self.warnings):
+                and len(self.passes) >= self._warn_after and not self._residual_warned):
+            self._residual_warned = True
             units = self.deployment.units
             self.warnings.append(
                 f"{NAME}: the real-world frame misfits {what} by {self.frame_residual:.3g} {units} RMS "
@@ -249,9 +271,13 @@ class AdaptiveBasisTracker:
     def flush(self, t: float) -> list[LineObjectEstimate]:
         """No transition at or before ``t`` (s) will come: close the open pass if its gap has
         elapsed (``t = inf``: close it anyway) and return what can be estimated."""
+        out = []
         if self._current and (t == math.inf or (self.gap is not None and t >= self._last + self.gap)):
-            return self._close()
-        return []
+            out = self._close()
+        if t == math.inf and self.revisions is not None and not self._finished:
+            self._finished = True
+            out += self.revisions.final(self.basis.t_refs)
+        return out
 
     # ---------------------------------------------------------------- passes
 
@@ -278,8 +304,31 @@ class AdaptiveBasisTracker:
                 self.skipped.append(obj + 1)
             else:
                 out.append(estimate)
+                if self.revisions is not None:
+                    self.revisions.publish(obj, estimate)
         self._emitted = self.basis.objects
+        if self.revisions is not None:
+            out += self._revise()
         return out
+
+    def _revise(self) -> list[LineObjectEstimate]:
+        """Re-solve every pass in real-world coordinates (:mod:`.revisions`) and return the
+        revised estimates of passes that moved by more than their published sd."""
+        basis, frame = self.basis, self.frame
+        lines = np.where(basis.line_known()[:, None], frame.lines(np.nan_to_num(basis.lines)), np.nan)
+        centres, velocities = frame.points(basis.centres), frame.vectors(basis.velocities)
+        passes = np.column_stack([velocities[:, 0], centres[:, 0], velocities[:, 1], centres[:, 1]])
+        passes[~basis.object_known()] = np.nan
+        fixed = {}
+        for cal in self.calibration:
+            obj = self._calibration_object(cal.t_entry, cal.t_exit)
+            if obj is not None and basis.object_known()[obj]:
+                v = (np.asarray(cal.exit, dtype=float) - cal.entry) / (cal.t_exit - cal.t_entry)
+                c = np.asarray(cal.entry, dtype=float) + v * (basis.t_refs[obj] - cal.t_entry)
+                fixed[obj] = np.array([v[0], c[0], v[1], c[1]])
+        if self.revisions.resolve(basis.times, basis.t_refs, lines, passes, fixed) is None:
+            return []
+        return self.revisions.check(basis.t_refs)
 
     def _point_sds(self, obj: int, times: tuple[float, float]) -> list[float | None]:
         """Standard deviations (units, √ trace) of pass ``obj``'s real-world positions at

@@ -380,11 +380,17 @@ function applyEstimate(item) {
 
 function applyObject(item) {
   show("object"); listLayer("objects");
+  const rev = item.rev || 0;
+  const old = layers.objects.getLayers().find((l) => l.objectNumber === item.n);
+  if (old && old.objectRevision > rev) return;  // a later revision is already drawn
+  if (old) layers.objects.removeLayer(old);
   const [ex, ey] = item.entry, [xx, xy] = item.exit;
   const arrow = arrowLatLngs(ex, ey, xx - ex, xy - ey, 1) || [[ll(ex, ey), ll(xx, xy)]];
-  L.polyline(arrow, { className: "object" })
-    .bindTooltip(`laser object ${item.n} · ${fmt(item.t0, 2)}–${fmt(item.t, 2)} s · v (${fmt(item.v[0])}, ${fmt(item.v[1])}) /s`, { sticky: true })
+  const line = L.polyline(arrow, { className: "object" })
+    .bindTooltip(`laser object ${item.n}${rev ? ` (revision ${rev})` : ""} · ${fmt(item.t0, 2)}–${fmt(item.t, 2)} s · v (${fmt(item.v[0])}, ${fmt(item.v[1])}) /s`, { sticky: true })
     .addTo(layers.objects);
+  line.objectNumber = item.n;
+  line.objectRevision = rev;
   while (layers.objects.getLayers().length > 100) layers.objects.removeLayer(layers.objects.getLayers()[0]);
 }
 
