@@ -69,6 +69,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-gap", type=positive_float, default=MAX_GAP, metavar="S",
                         help="jump over a gap in event time longer than S seconds (logged) instead of ticking and "
                         "pacing through it (default: %(default)s)")
+    parser.add_argument("--salvage", action="store_true",
+                        help="play a recording with bad chunks anyway: the sound ones, saying in one line what was lost "
+                        "(without it a corrupt recording is refused, exit 2)")
     parser.add_argument("--id", help="instance id (default: host-pid)")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     add_bus_arguments(parser, net_default=None)
@@ -89,7 +92,7 @@ class Replay(Service):
     name = "replay"
 
     def __init__(self, args: argparse.Namespace):
-        self.source = ReplaySource(args.source, args.keys, args.max_ahead + 2)
+        self.source = ReplaySource(args.source, args.keys, args.max_ahead + 2, getattr(args, "salvage", False))
         args.net = args.net or self.source.net
         if args.clock_period is None:
             args.clock_period = default_clock_period(args.speed)
@@ -98,7 +101,8 @@ class Replay(Service):
         except ValueError as exc:
             raise CommandError(f"{exc}; give a network name with --net") from None
         super().__init__(args)
-        warning = self.source.span.warning(f"{args.source}/events.csv") if self.source.span else None
+        warning = (self.source.span.warning(f"{args.source}/events.csv") if self.source.span
+                   else self.source.recording.note())
         if warning:
             log.warning("replay: %s", warning)
         self.source.play_on(self.keys)

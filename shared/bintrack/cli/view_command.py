@@ -28,6 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_alias(parser, "--bind", "--map-bind", "bind")
     parser.add_argument("--tail", type=positive_float, default=DEFAULT_TAIL, metavar="S",
                         help="event time drawn behind each track and truth target, s (default: %(default)s)")
+    parser.add_argument("--salvage", action="store_true",
+                        help="with a recording: play one with bad chunks anyway: the sound ones, saying in one line what was lost "
+                        "(without it a corrupt recording is refused, exit 2)")
     parser.add_argument("--id", help="instance id on the bus (default: host-pid)")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     add_bus_arguments(parser, net_default=None)

@@ -25,12 +25,13 @@ Put = Callable[[str, bytes, bytes | None], None]
 
 class ReplaySource:
     """The source at ``path`` (a ``.mcap`` recording, else a dataset folder); raises
-    FormatError for a bad one, having read every row before anything is published."""
+    FormatError for a bad one (a corrupt recording too, unless ``salvage``), having read every
+    row before anything is published."""
 
-    def __init__(self, path: str, filters: Iterable[str], memory_ticks: int):
+    def __init__(self, path: str, filters: Iterable[str], memory_ticks: int, salvage: bool = False):
         path = Path(path)
         if path.suffix == ".mcap":
-            self.recording, self.dataset, self.truth, self.span = open_recording(path), None, [], None
+            self.recording, self.dataset, self.truth, self.span = open_recording(path, salvage), None, [], None
             self.deployment, self.net = self.recording.deployment, self.recording.net
             self.total = None
         else:
