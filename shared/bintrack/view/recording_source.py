@@ -28,6 +28,7 @@ from bintrack.keys import parse_key
 from bintrack.message_codec import MessageError, decode
 from bintrack.live.recording import KIND_TYPES, open_recording
 from bintrack.view.map_messages import DRAWN_KINDS, Item, message_item
+from bintrack.view.map_access import check_bind, token_from
 from bintrack.view.map_server import DEFAULT_PAGE_QUEUE, PageFeed, listening_socket, make_app, served_line, start_site
 from bintrack.view.map_state import DEFAULT_TAIL, MapState
 
@@ -242,16 +243,18 @@ def _number(value) -> bool:
 
 def serve_recording(args: argparse.Namespace) -> int:
     """``bintrack view RECORDING.mcap``: serve the page on the recording until Ctrl-C/SIGTERM."""
+    token = token_from(args.token)
+    check_bind(args.bind, token)
     source = RecordingSource(args.recording, tail=args.tail, salvage=args.salvage)
 
     async def main() -> int:
         try:
             sock = listening_socket(args.bind, args.port)
-            runner = await start_site(make_app(source), sock)
+            runner = await start_site(make_app(source, token), sock)
         except OSError as exc:
             raise CommandError(str(exc)) from None
         t0, t1 = source.range
-        print(f"{served_line('view', args.bind, args.port, sock)} ({source.path.name}: {t1 - t0:.1f} s of event time, "
+        print(f"{served_line('view', args.bind, args.port, sock, token)} ({source.path.name}: {t1 - t0:.1f} s of event time, "
               f"{len(source.recording.deployment.sensors)} sensors)", file=sys.stderr, flush=True)
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
