@@ -45,7 +45,7 @@ from bintrack.bus_payloads import Clock
 from bintrack.message_codec import MessageError, decode
 from bintrack.live.stack import ServiceCommand, is_broker, region_stack_commands, stack_commands
 from bintrack.regions import grid_areas, grid_shape
-from bintrack.live.secure_profile import secure_up
+from bintrack.live.secure_profile import exposed_keys, secure_up
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_arguments, tracker_options
 from bintrack.trackers import TRACKER_NAMES, check_options as make_tracker_check, sensor_mismatch
 from bintrack.view.map_access import TOKEN_ENV, check_bind, token_from
@@ -369,6 +369,10 @@ def run(args: argparse.Namespace) -> int:
     if args.record is not None:
         output_file(args.record)
     net = args.net or _source_net(args.source, getattr(args, "sensor_table", None)) or "default"
+    try:
+        Keys(net)
+    except ValueError as exc:
+        raise CommandError(f"{exc}; give a network name with --net") from None
     if args.source is not None and not is_broker(args.source) and Path(args.source).suffix != ".mcap":
         mismatch = sensor_mismatch(args.tracker, open_dataset(args.source).deployment)
         if mismatch is not None:
@@ -404,6 +408,9 @@ def run(args: argparse.Namespace) -> int:
     if args.secure:
         try:
             commands, config = secure_up(commands, args.certs, args.listen)
+            exposed = exposed_keys(Path(args.certs))
+            if exposed is not None:
+                print(f"up: warning: {exposed}", file=sys.stderr)
         except CommandError:
             if view_socket is not None:
                 view_socket.close()

@@ -26,8 +26,9 @@ class ServiceCommand:
         return f"bintrack.services.{self.name}"
 
     def argv(self, python: str) -> list[str]:
-        """The command line with the interpreter ``python``."""
-        return [python, "-m", self.module, *self.args]
+        """The command line with the interpreter ``python``; ``-P``: the module is the installed
+        one, never a ``bintrack/`` folder in the directory ``up`` was run from."""
+        return [python, "-P", "-m", self.module, *self.args]
 
 
 def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None = None, speed: float = 1.0,
