@@ -265,6 +265,8 @@ class ScanFusion:
     scan is emitted; the next transition's scan follows, counting those passed over.
     """
 
+    _skipped = 0  # scans passed over before the next one (a class default: checkpoints made before it)
+
     def __init__(self, deployment: Deployment, config: FusionConfig = FusionConfig()):
         self.grid = GridFusion(deployment, config)
         self.period = scan_period(deployment, config)
@@ -272,7 +274,6 @@ class ScanFusion:
         self._sensors = deployment.by_id()
         self._next: int | None = None  # index of the next scan to emit
         self._last_t: float | None = None
-        self._skipped = 0  # scans passed over before the next one
 
     def fuse(self, scan: Scan, expected: list[Expectation] | tuple = ()) -> PositionReports:
         """The position reports of ``scan`` (``GridFusion.reports``), given where the tracks
