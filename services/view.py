@@ -54,8 +54,9 @@ def add_web_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--token", metavar="TOKEN", help="a secret the map asks for, needed to serve it beyond 127.0.0.1: open the printed URL, which carries it "
                         "(default: $BINTRACK_MAP_TOKEN)")
     parser.add_argument("--no-token", action="store_true",
-                        help="serve beyond 127.0.0.1 without a token: only for a container whose port is published "
-                        "on the host's loopback alone (the compose files)")
+                        help="start beyond 127.0.0.1 even without a token: for `bintrack up`, which checked that "
+                        "itself, and a container whose port is published on the host's loopback alone (the compose "
+                        "files); a token given is still asked for")
     parser.add_argument("--socket-fd", type=int, metavar="FD", help=argparse.SUPPRESS)  # a listening socket from `up`
     parser.add_argument("--tail", type=positive_float, default=DEFAULT_TAIL, metavar="S",
                         help="event time drawn behind each track and truth target, s (default: %(default)s)")
