@@ -1,7 +1,7 @@
 """Replay: plays a dataset folder or a recording onto the bus (DESIGN §1, §3), flow-controlled.
 
     python -m bintrack.services.replay SOURCE [--speed X] [--loop] [--clock-period S]
-        [--max-ahead N] [--wait-for SERVICE[,SERVICE…]] [--ready-timeout S] [--keys KEYEXPR]…
+        [--max-ahead N] [--max-gap S] [--wait-for SERVICE[,SERVICE…]] [--ready-timeout S] [--keys KEYEXPR]…
         [-m MODE] [-e ENDPOINT]… [-l ENDPOINT]… [-c FILE] [--cfg KEY:VALUE]… [--net NAME]
 
 Serves the ``deployment`` queryable, waits for the ``--wait-for`` services, then executes
@@ -29,7 +29,7 @@ from bintrack.live.control_guard import control_attachment
 from bintrack.live.replay_gate import ReplayGate
 from bintrack.live.checkpoint import ReplayCheckpoint
 from bintrack.live.replay_player import ReplayPlayer
-from bintrack.live.replay_schedule import TICK_FASTEST, TICK_WALL, default_clock_period, schedule
+from bintrack.live.replay_schedule import MAX_GAP, TICK_FASTEST, TICK_WALL, default_clock_period, schedule
 from bintrack.live.replay_source import ReplaySource
 from bintrack.live.service import Service, service_main
 from bintrack.live.session_options import add_bus_arguments
@@ -66,6 +66,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--keys", action="append", default=[], type=_key_expr, metavar="KEYEXPR",
                         help="replay only samples whose recorded key matches, repeatable, e.g. 'bintrack/*/raw/**' "
                         "(clock ticks are always replayed)")
+    parser.add_argument("--max-gap", type=positive_float, default=MAX_GAP, metavar="S",
+                        help="jump over a gap in event time longer than S seconds (logged) instead of ticking and "
+                        "pacing through it (default: %(default)s)")
+    parser.add_argument("--salvage", action="store_true",
+                        help="play a recording with bad chunks anyway: the sound ones, saying in one line what was lost "
+                        "(without it a corrupt recording is refused, exit 2)")
     parser.add_argument("--id", help="instance id (default: host-pid)")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     add_bus_arguments(parser, net_default=None)
@@ -86,7 +92,7 @@ class Replay(Service):
     name = "replay"
 
     def __init__(self, args: argparse.Namespace):
-        self.source = ReplaySource(args.source, args.keys, args.max_ahead + 2)
+        self.source = ReplaySource(args.source, args.keys, args.max_ahead + 2, getattr(args, "salvage", False))
         args.net = args.net or self.source.net
         if args.clock_period is None:
             args.clock_period = default_clock_period(args.speed)
@@ -95,6 +101,10 @@ class Replay(Service):
         except ValueError as exc:
             raise CommandError(f"{exc}; give a network name with --net") from None
         super().__init__(args)
+        warning = (self.source.span.warning(f"{args.source}/events.csv") if self.source.span
+                   else self.source.recording.note())
+        if warning:
+            log.warning("replay: %s", warning)
         self.source.play_on(self.keys)
         wanted = list(dict.fromkeys(name.strip() for item in args.wait_for for name in item.split(",") if name.strip()))
         self.gate = ReplayGate(wanted, lambda: self.router_watch.lost_at is not None, self.stopping)
@@ -111,7 +121,8 @@ class Replay(Service):
         payload, run = encode(self.source.deployment), self.checkpoints.run_id.encode()
         self.serve(self.keys.deployment(), lambda query: query.reply(self.keys.deployment(), payload, attachment=run))
         plan = iter(schedule(self.source.items, period=self.args.clock_period, max_ahead=self.args.max_ahead,
-                             recorded_ticks=self.source.recording is not None, loop=self.args.loop))
+                             recorded_ticks=self.source.recording is not None, loop=self.args.loop,
+                             max_gap=self.args.max_gap))
         self.player = ReplayPlayer(plan, self.source, self.gate, self.keys, self.put, self.checkpoints.save,
                                    self.stopping, self.args.speed, self.args.loop)
         if checkpoint is not None:
@@ -146,7 +157,7 @@ class Replay(Service):
         """The attachment of this replay's clock and end of stream (see control_guard). The step
         it announces is the largest between two ticks a receiver may see: up to --max-ahead
         ticks may be in flight, and lost together with the router."""
-        step = self.source.largest_step(self.args.clock_period)
+        step = self.source.largest_step(self.args.clock_period, self.args.max_gap)
         return control_attachment(self.name, self.instance, step * self.args.max_ahead)
 
     async def main(self) -> None:

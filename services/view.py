@@ -33,6 +33,7 @@ from bintrack.keys import parse_key
 from bintrack.bus_payloads import TrackSet
 from bintrack.message_codec import MessageError, decode
 from bintrack.live.recording import KIND_TYPES
+from bintrack.view.map_access import check_bind, token_from
 from bintrack.view.map_messages import DRAWN_KINDS, message_item
 from bintrack.view.map_server import (DEFAULT_BIND, DEFAULT_PORT, MapHub, listening_socket, make_app, page_url,
                                       served_line, start_site)
@@ -50,6 +51,12 @@ def add_web_arguments(parser: argparse.ArgumentParser) -> None:
                         "always picks a free one)")
     parser.add_argument("--bind", default=DEFAULT_BIND, metavar="ADDRESS",
                         help="address to serve on (default: %(default)s, this machine only)")
+    parser.add_argument("--token", metavar="TOKEN", help="a secret the map asks for, needed to serve it beyond 127.0.0.1: open the printed URL, which carries it "
+                        "(default: $BINTRACK_MAP_TOKEN)")
+    parser.add_argument("--no-token", action="store_true",
+                        help="start beyond 127.0.0.1 even without a token: for `bintrack up`, which checked that "
+                        "itself, and a container whose port is published on the host's loopback alone (the compose "
+                        "files); a token given is still asked for")
     parser.add_argument("--socket-fd", type=int, metavar="FD", help=argparse.SUPPRESS)  # a listening socket from `up`
     parser.add_argument("--tail", type=positive_float, default=DEFAULT_TAIL, metavar="S",
                         help="event time drawn behind each track and truth target, s (default: %(default)s)")
@@ -62,16 +69,19 @@ class View(Service):
         self.hub = MapHub(MapState(tail=self.args.tail))
         self.hub.on_page = self.complete_picture
         self.counts: Counter = Counter()
+        token = token_from(self.args.token)
+        if not self.args.no_token:
+            check_bind(self.args.bind, token)
         try:
             if self.args.socket_fd is not None:   # bound by `bintrack up`, which keeps the port across restarts
                 sock = socket.socket(fileno=self.args.socket_fd)
             else:
                 sock = listening_socket(self.args.bind, self.args.port)
-            self.runner = await start_site(make_app(self.hub), sock)
+            self.runner = await start_site(make_app(self.hub, token), sock)
         except OSError as exc:
             raise CommandError(str(exc)) from None
-        self.url = page_url(self.args.bind, sock.getsockname()[1])
-        print(served_line("view", self.args.bind, self.args.port, sock), file=sys.stderr, flush=True)
+        self.url = page_url(self.args.bind, sock.getsockname()[1], token)
+        print(served_line("view", self.args.bind, self.args.port, sock, token), file=sys.stderr, flush=True)
         self.subscribe(self.keys.all(), self.on_sample)
         self.services: set[tuple[str, str]] = set()
         self.follow_presence(self.on_presence)

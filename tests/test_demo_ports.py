@@ -102,9 +102,10 @@ def test_make_demo_succeeds_while_8080_is_held_and_another_up_runs(tmp_path):
 
 
 def test_up_goes_on_without_the_map_when_it_cannot_be_served(tmp_path):
-    # 192.0.2.1 (TEST-NET-1) is no address of this machine: nothing can be bound there
+    # 192.0.2.1 (TEST-NET-1) is no address of this machine: nothing can be bound there (with a
+    # token, as any address beyond loopback needs one)
     result = bintrack("up", str(DARPA1), "--speed", "0", "--exit-at-end", "--listen", f"tcp/127.0.0.1:{free_port()}",
-                      "--map-bind", "192.0.2.1", "--record", str(tmp_path / "run.mcap"))
+                      "--map-bind", "192.0.2.1", "--map-token", "t0ken", "--record", str(tmp_path / "run.mcap"))
     assert result.returncode == 0, result.stderr[-3000:]
     without = [line for line in result.stderr.splitlines() if "without the map" in line]
     assert len(without) == 1 and without[0].startswith("up: cannot serve the map on 192.0.2.1:8080"), without

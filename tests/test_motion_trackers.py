@@ -15,6 +15,7 @@ from bintrack.errors import TrackerConfigError
 from bintrack.bus_payloads import Transition, VelocityEstimate
 from bintrack.deployment_model import Deployment, MotionSensor, Region
 from bintrack.pipeline import TrackerDriver
+from bintrack.time_span import MAX_SILENCE
 from bintrack.sim.scenarios import build_scenario, simulate
 from bintrack.trackers.motion.tracker import (
     MOTION_TRACKERS,
@@ -286,3 +287,14 @@ def test_non_motion_deployment_raises(name):
         MOTION_TRACKERS[name](disks)
     assert "\n" not in str(info.value)
     assert MOTION_TRACKERS[name].name == name
+
+
+def test_a_silence_longer_than_max_silence_is_passed_over():
+    tracker = _Recorder(_deployment())
+    tracker.update(_tr(0.0, "m0", 1, -1, 1))
+    # a transition 1e9 s later: the periods up to MAX_SILENCE after the last transition are
+    # completed (held statuses), the rest of the gap is empty time, not 1e9 periods
+    out = tracker.update(_tr(1e9, "m1", 1, -1, 1))
+    assert [e.t for e in out] == [float(k) for k in range(int(MAX_SILENCE) + 1)]
+    assert [e.t for e in tracker.flush(math.inf)] == [1e9]
+    assert tracker.rows[-1] == (10 ** 9, 1e9, [1, 1, -1, -1])

@@ -20,7 +20,7 @@ from bintrack.bus_payloads import Clock, EndOfStream, RawSample
 from bintrack.deployment_model import Deployment, DiskSensor, Region
 from bintrack.message_codec import decode, encode
 from bintrack.live.recording import open_recording
-from bintrack.live.replay_schedule import (Consumers, End, NothingToReplay, Pacer, Publish, Tick, default_clock_period,
+from bintrack.live.replay_schedule import (Consumers, End, Gap, NothingToReplay, Pacer, Publish, Tick, default_clock_period,
                                            schedule)
 
 from support import DATASETS, HUNG, REPO, bintrack, free_port, wait_logged, wait_until
@@ -98,6 +98,27 @@ def test_recorded_ticks_are_used_and_a_final_tick_added_when_missing():
     ]
     # a recording that has its final tick already gets no extra one
     assert plan(items + [(1.0, None)], period=0.5, recorded_ticks=True)[-2:] == [Tick(1.0, 0.5), End(0.9, 1.0, True)]
+
+
+def test_a_gap_longer_than_max_gap_is_jumped_over_not_ticked_through():
+    items = [(0.1, "a"), (0.7, "b"), (1e9 + 0.2, "c")]
+    assert plan(items, period=0.5, max_gap=60.0) == [
+        Tick(0.0, None), Publish(0.1, "a", 0.0), Tick(0.5, 0.0), Publish(0.7, "b", 0.0),
+        Tick(1.0, 0.5),  # the first tick past the item before the gap
+        Gap(1.0, 1e9), Tick(1e9, 1.0), Publish(1e9 + 0.2, "c", 0.0), Tick(1e9 + 0.5, 1e9), End(1e9 + 0.2, 1e9 + 0.5, True),
+    ]
+    # a gap up to max_gap is ticked through as before; recorded ticks jump to the next item
+    assert not any(isinstance(a, Gap) for a in plan([(0.1, "a"), (59.0, "b")], period=0.5, max_gap=60.0))
+    recorded = plan([(0.0, None), (0.1, "a"), (0.5, None), (1e6, "b"), (1e6 + 0.5, None)], period=0.5,
+                    recorded_ticks=True, max_gap=60.0)
+    assert recorded[3:5] == [Gap(0.5, 1e6), Publish(1e6, "b", 0.0)]
+
+
+def test_pacer_skips_a_gap():
+    pacer = Pacer(1.0)
+    assert pacer.delay(10.0, now=100.0) == 0.0
+    pacer.skip(1e9)
+    assert pacer.delay(1e9 + 12.0, now=100.0) == pytest.approx(2.0)
 
 
 def test_nothing_to_replay_and_bad_options():

@@ -234,6 +234,8 @@ def parse_deployment(text: str, path: Path | str = DEPLOYMENT_FILE) -> Deploymen
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise FormatError(path, exc.lineno, "json", exc.msg) from None
+    except RecursionError:
+        raise FormatError(path, None, "json", "nested too deeply to be a deployment") from None
     if not isinstance(data, dict):
         raise FormatError(path, 1, "(top level)", "expected a JSON object")
     fmt_tag = data.get("format")

@@ -157,6 +157,10 @@ def run(args: argparse.Namespace) -> int:
     if args.ca and not (Path(args.ca) / "ca.pem").is_file():
         raise CommandError(f"--ca {args.ca}: no ca.pem there (make one with `bintrack certs --out DIR`)")
     output_folder(Path(args.out))
+    try:
+        os.chmod(args.out, 0o700)  # it holds private keys: whatever the umask
+    except OSError as exc:
+        raise CommandError(f"cannot make {args.out} private (chmod 700): {exc.strerror or exc}") from None
     written = make_certs(Path(args.out), roles, args.days, Path(args.ca) if args.ca else None, router_names)
     print(f"certs: wrote {len(written)} files into {args.out} (keys mode 0600): {', '.join(p.name for p in written)}")
     return 0

@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     up.add_arguments(parser)
     options = [str(folder), "--tracker", args.tracker, "--speed", repr(args.speed), "--record", str(recording),
                "--exit-at-end", "--map-port", str(args.view_port), "--map-bind", args.view_bind,
-               *(() if args.view else ("--no-map",))]
+               *(("--map-token", args.view_token) if args.view_token else ()), *(() if args.view else ("--no-map",))]
     # the router's port is checked free and then bound: should another program take it in
     # between, try another one
     for attempt in range(3):

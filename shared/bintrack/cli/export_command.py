@@ -53,6 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--foxglove", metavar="OUT.mcap",
                         help="instead: write every message JSON-encoded, plus a foxglove.SceneUpdate channel /scene, "
                         "for Foxglove")
+    parser.add_argument("--salvage", action="store_true",
+                        help="read a recording with bad chunks anyway: the sound ones, saying in one line what was lost "
+                        "(without it a corrupt recording is refused, exit 2)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -63,7 +66,13 @@ def run(args: argparse.Namespace) -> int:
             raise CommandError(f"--foxglove {args.foxglove}: the output's name must end in .mcap")
     elif args.what is None or args.out is None:
         raise CommandError("give --what and --out (or --foxglove OUT.mcap)")
-    recording = open_recording(args.recording)
+    recording = open_recording(args.recording, salvage=args.salvage)
+    note = recording.note()
+    if note is not None:
+        print(f"bintrack export: warning: {note}; exporting what was read", file=sys.stderr)
+    elif not recording.complete:
+        print(f"bintrack export: warning: {args.recording} was not finalised (it has no index); all its "
+              f"{recording.message_count} records read", file=sys.stderr)
     if args.foxglove is not None or args.out != "-":
         output_file(args.foxglove if args.foxglove is not None else args.out)
     if args.foxglove is not None:
@@ -75,9 +84,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"{sum(counts.values())} JSON messages written to {args.foxglove} "
               f"({', '.join(f'{kind} {n}' for kind, n in sorted(counts.items()))})", file=sys.stderr)
         return 0
-    if not recording.complete:
-        print(f"bintrack export: warning: {args.recording} was not finalised; exporting its readable prefix",
-              file=sys.stderr)
     target = sys.stdout if args.out == "-" else args.out
     if args.what == "objects":
         count = write_objects(target, object_rows(recording))

@@ -12,6 +12,7 @@ from bintrack.errors import CommandError
 from bintrack.formats import open_dataset, write_objects, write_tracks
 from bintrack.pipeline import output_objects, output_rows, run_regions, run_tracker
 from bintrack.regions import RegionMap
+from bintrack.time_span import TimeSpan
 from bintrack.trackers.multi.region_merge import RegionMerge
 from bintrack.cli.progress import Progress
 from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
@@ -48,6 +49,9 @@ def run(args: argparse.Namespace) -> int:
     if online and args.tracker not in OBJECT_TRACKERS:
         raise CommandError(f"--online: tracker {args.tracker} does not revise its estimates (adaptive-basis does)")
     dataset = open_dataset(args.dataset)
+    span = TimeSpan.of(event.t for event in dataset.events()).warning(str(dataset.events_path))
+    if span is not None:
+        print(f"bintrack track: warning: {span}", file=sys.stderr)
     if args.out not in (None, "-"):
         output_file(args.out)
     if getattr(args, "regions", False):

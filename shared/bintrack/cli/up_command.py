@@ -45,9 +45,10 @@ from bintrack.bus_payloads import Clock
 from bintrack.message_codec import MessageError, decode
 from bintrack.live.stack import ServiceCommand, is_broker, region_stack_commands, stack_commands
 from bintrack.regions import grid_areas, grid_shape
-from bintrack.live.secure_profile import secure_up
+from bintrack.live.secure_profile import exposed_keys, secure_up
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_arguments, tracker_options
 from bintrack.trackers import TRACKER_NAMES, check_options as make_tracker_check, sensor_mismatch
+from bintrack.view.map_access import TOKEN_ENV, check_bind, token_from
 from bintrack.view.map_server import DEFAULT_BIND, DEFAULT_PORT, listening_socket
 
 SHOWN = (("raw", "events"), ("transition", "transitions"), ("estimate", "estimates"), ("tracks", "tracks"))
@@ -115,6 +116,9 @@ def add_map_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map-bind", dest="view_bind", default=DEFAULT_BIND, metavar="ADDRESS",
                         help="address the map is served on (default: %(default)s, this machine only)")
     add_alias(parser, "--view-bind", "--map-bind", "view_bind")
+    parser.add_argument("--map-token", dest="view_token", metavar="TOKEN", help="a secret the map asks for, needed to serve it beyond 127.0.0.1: open the printed URL, which carries it "
+                        "(default: $BINTRACK_MAP_TOKEN)")
+    add_alias(parser, "--view-token", "--map-token", "view_token")
 
 
 class RouterPortTaken(CommandError):
@@ -365,6 +369,10 @@ def run(args: argparse.Namespace) -> int:
     if args.record is not None:
         output_file(args.record)
     net = args.net or _source_net(args.source, getattr(args, "sensor_table", None)) or "default"
+    try:
+        Keys(net)
+    except ValueError as exc:
+        raise CommandError(f"{exc}; give a network name with --net") from None
     if args.source is not None and not is_broker(args.source) and Path(args.source).suffix != ".mcap":
         mismatch = sensor_mismatch(args.tracker, open_dataset(args.source).deployment)
         if mismatch is not None:
@@ -375,6 +383,9 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise CommandError(str(exc)) from None
     view_bind = getattr(args, "view_bind", "127.0.0.1")
+    view_token = token_from(getattr(args, "view_token", None))
+    if getattr(args, "view", False):
+        check_bind(view_bind, view_token)
     regions_dir = None
     with_regions = getattr(args, "regions", None) is not None
     if with_regions:
@@ -397,6 +408,9 @@ def run(args: argparse.Namespace) -> int:
     if args.secure:
         try:
             commands, config = secure_up(commands, args.certs, args.listen)
+            exposed = exposed_keys(Path(args.certs))
+            if exposed is not None:
+                print(f"up: warning: {exposed}", file=sys.stderr)
         except CommandError:
             if view_socket is not None:
                 view_socket.close()
@@ -432,7 +446,7 @@ def run(args: argparse.Namespace) -> int:
     presence.listen(monitor.on_presence)
     presence.declare(router, lambda handler: handler)
     entities = [router.declare_subscriber(keys.all(), monitor.on_sample), presence]
-    env = {**os.environ, PARENT_ENV: str(os.getpid())}
+    env = {**os.environ, PARENT_ENV: str(os.getpid()), **({TOKEN_ENV: view_token} if view_token else {})}
     group: int | None = None
     stopped_by: Stopped | None = None
     failed: str | None = None

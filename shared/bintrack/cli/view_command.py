@@ -26,12 +26,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map-bind", dest="bind", default=DEFAULT_BIND, metavar="ADDRESS",
                         help="address the map is served on (default: %(default)s, this machine only)")
     add_alias(parser, "--bind", "--map-bind", "bind")
+    parser.add_argument("--map-token", dest="token", metavar="TOKEN", help="a secret the map asks for, needed to serve it beyond 127.0.0.1: open the printed URL, which carries it "
+                        "(default: $BINTRACK_MAP_TOKEN)")
+    add_alias(parser, "--view-token", "--map-token", "token")
     parser.add_argument("--tail", type=positive_float, default=DEFAULT_TAIL, metavar="S",
                         help="event time drawn behind each track and truth target, s (default: %(default)s)")
+    parser.add_argument("--salvage", action="store_true",
+                        help="with a recording: play one with bad chunks anyway: the sound ones, saying in one line what was lost "
+                        "(without it a corrupt recording is refused, exit 2)")
     parser.add_argument("--id", help="instance id on the bus (default: host-pid)")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     add_bus_arguments(parser, net_default=None)
-    parser.set_defaults(socket_fd=None)
+    parser.set_defaults(socket_fd=None, no_token=False)
     parser.epilog = "Without --net and a recording: the one network alive on the bus (they are listed if several)."
 
 

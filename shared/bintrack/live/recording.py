@@ -27,7 +27,6 @@ from __future__ import annotations
 import io
 import json
 import math
-import struct
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -35,11 +34,9 @@ from pathlib import Path
 from typing import IO
 
 import msgpack
-from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Attachment, Channel, Metadata, Schema
+from mcap.records import Attachment, Channel, Metadata
 from mcap.records import Message as McapMessage
-from mcap.stream_reader import StreamReader
 from mcap.writer import IndexType, Writer
 
 from bintrack import __version__
@@ -52,6 +49,7 @@ from bintrack.bus_payloads import (
 from bintrack.deployment_model import Deployment
 from bintrack.message_base import Message
 from bintrack.message_codec import MessageError, decode
+from bintrack.live.recording_check import MCAP_MAGIC, Damage, checked_scan, skipped_by_statistics
 
 RECORDING_FORMAT = "bintrack.recording/1"
 RECORDING_METADATA = "bintrack.recording"
@@ -59,7 +57,6 @@ DEPLOYMENT_ATTACHMENT = "bintrack.deployment"
 MESSAGE_ENCODING = "msgpack"
 SCHEMA_ENCODING = "jsonschema"
 CHUNK_SIZE = 64 * 1024
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 # The message type of each key kind (keys.parse_key); ``alive`` keys carry no message.
 KIND_TYPES: dict[str, type[Message]] = {
@@ -245,25 +242,25 @@ class Recording:
     net: str
     complete: bool
     message_count: int | None
+    damage: Damage | None = None
 
     def records(self, keep: Callable[[str], bool] | None = None) -> Iterator[Record]:
         """Every record whose key passes ``keep`` (default: all), in log-time order, ties in
-        the order they were recorded. Raises FormatError if the file is corrupt."""
+        the order they were recorded: one checked pass over the data section
+        (:mod:`.recording_check`), so the summary, which no checksum covers, is never
+        trusted. Only the sound chunks are read (the file was opened knowing their damage)."""
         with open_input(self.path, "an .mcap recording", binary=True) as handle:
-            if self.complete:
-                try:
-                    reader = SeekingReader(handle)
-                    for _, channel, message in reader.iter_messages(log_time_order=True):
-                        if keep is None or keep(channel.topic):
-                            yield _record(channel, message)
-                except (McapError, EOFError, ValueError, OSError, struct.error) as exc:
-                    raise FormatError(self.path, None, "mcap", f"corrupt recording ({type(exc).__name__}: {exc})") from None
-            else:
-                scan = _scan(handle, self.path)
-                pairs = [(c, m) for c, m in scan.messages if keep is None or keep(c.topic)]
-                pairs.sort(key=lambda pair: pair[1].log_time)  # stable: ties stay in file order
-                for channel, message in pairs:
-                    yield _record(channel, message)
+            scan = checked_scan(handle, keep_messages=True)
+        pairs = [(c, m) for c, m in scan.messages if keep is None or keep(c.topic)]
+        pairs.sort(key=lambda pair: pair[1].log_time)  # stable: ties stay in file order
+        for channel, message in pairs:
+            yield _record(channel, message)
+
+    def note(self) -> str | None:
+        """One line on what of the file could not be read (a damaged or torn file), else None."""
+        if self.damage is None:
+            return None
+        return f"{self.path}: {self.damage.describe(self.message_count or 0)}"
 
     def messages(self, kinds: set[str] | frozenset[str]) -> Iterator[tuple[Record, Message]]:
         """Decoded messages of the given key kinds, in log-time order; FormatError for a payload
@@ -301,47 +298,14 @@ def _record(channel: Channel, message: McapMessage) -> Record:
     return Record(channel.topic, message.log_time / 1e9, bytes(message.data), message.publish_time)
 
 
-@dataclass
-class _Scan:
-    """What a linear read of a (possibly truncated) file found."""
-
-    messages: list[tuple[Channel, McapMessage]]
-    attachments: list[Attachment]
-    metadata: list[Metadata]
-
-
-def _scan(handle: IO[bytes], path: Path) -> _Scan:
-    """Read records from the start until the end or the first damaged record."""
-    handle.seek(0, io.SEEK_SET)
-    scan = _Scan([], [], [])
-    channels: dict[int, Channel] = {}
-    schemas: dict[int, Schema] = {}
-    try:
-        for record in StreamReader(handle, skip_magic=False).records:
-            if isinstance(record, Schema):
-                schemas[record.id] = record
-            elif isinstance(record, Channel):
-                channels[record.id] = record
-            elif isinstance(record, McapMessage):
-                if record.channel_id not in channels:
-                    raise McapError(f"message on unknown channel {record.channel_id}")
-                scan.messages.append((channels[record.channel_id], record))
-            elif isinstance(record, Attachment):
-                scan.attachments.append(record)
-            elif isinstance(record, Metadata):
-                scan.metadata.append(record)
-    except Exception as exc:  # the stream reader raises assorted types on a torn record
-        if not scan.attachments:
-            detail = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-            raise FormatError(path, None, "mcap", f"corrupt or truncated recording ({detail})") from None
-    return scan
-
-
-def open_recording(path: Path | str) -> Recording:
-    """Open a bintrack recording and read its deployment and network name.
+def open_recording(path: Path | str, salvage: bool = False) -> Recording:
+    """Open a bintrack recording and read its deployment and network name, checking every
+    chunk (:func:`~bintrack.live.recording_check.checked_scan`).
 
     Raises FormatError (one line naming the file) for a missing, non-MCAP or corrupt file, or
-    an MCAP file that is not a bintrack recording.
+    an MCAP file that is not a bintrack recording. A file with a bad chunk or a broken record
+    is corrupt unless ``salvage``: then its sound chunks are read, and :meth:`Recording.note`
+    says what was lost; so it does for a file that merely stops (never finalised, or cut short).
     """
     path = Path(path)
     with open_input(path, "an .mcap recording", binary=True) as handle:
@@ -349,21 +313,27 @@ def open_recording(path: Path | str) -> Recording:
         if magic != MCAP_MAGIC:
             raise FormatError(path, None, "file", "empty file, expected an MCAP recording" if not magic
                               else "not an MCAP recording (bad magic bytes)")
-        count: int | None = None
+        scan = checked_scan(handle, keep_messages=False)
+        summary = _summary(handle)
+        damage = scan.damage
+        if damage is not None and summary is not None and summary.statistics is not None:
+            damage = skipped_by_statistics(damage, scan.count, summary.statistics.message_count)
+        if damage is not None and not damage.torn and (not salvage or not scan.attachments):
+            hint = "; --salvage reads the sound chunks" if scan.attachments else ""
+            raise FormatError(path, None, "mcap", f"corrupt recording: {damage.describe(scan.count)}{hint}")
+        if damage is not None and damage.torn and not scan.attachments:
+            raise FormatError(path, None, "mcap", f"corrupt or truncated recording: {damage.describe(scan.count)}")
+        complete = scan.finalised and summary is not None  # with the index a seek needs (the map's slider)
+    return Recording(path, _deployment(path, scan.attachments), _net(path, scan.metadata), complete, scan.count, damage)
+
+
+def _summary(handle: IO[bytes]):
+    """The file's summary (mcap ``Summary``), None if it has none or it does not read."""
+    try:
         handle.seek(0, io.SEEK_SET)
-        try:
-            reader = SeekingReader(handle)
-            summary = reader.get_summary()
-            attachments = list(reader.iter_attachments())
-            metadata = list(reader.iter_metadata())
-            complete = True
-            if summary is not None and summary.statistics is not None:
-                count = summary.statistics.message_count
-        except Exception:  # no valid footer or summary (assorted types): a recording never finalised
-            scan = _scan(handle, path)
-            attachments, metadata, complete = scan.attachments, scan.metadata, False
-            count = len(scan.messages)
-    return Recording(path, _deployment(path, attachments), _net(path, metadata), complete, count)
+        return SeekingReader(handle).get_summary()
+    except Exception:  # assorted types from a damaged or missing summary
+        return None
 
 
 def _deployment(path: Path, attachments: list[Attachment]) -> Deployment:

@@ -53,7 +53,10 @@ class RecordingFiles:
         many, the event time of the newest, that of the newest track set; s)."""
         count, last_t, last_tracks = 0, 0.0, float("-inf")
         try:
-            for record in open_recording(path).records():
+            recording = open_recording(path, salvage=True)
+            if recording.note() is not None:
+                log.warning("recorder: %s", recording.note())
+            for record in recording.records():
                 self.writer.write(record.key, record.t, record.payload, record.received_ns)
                 if record.kind == "tracks":
                     last_tracks = max(last_tracks, record.t)

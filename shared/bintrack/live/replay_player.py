@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterator
 from bintrack.keys import Keys
 from bintrack.live.checkpoint import ReplayCheckpoint
 from bintrack.live.replay_gate import ReplayGate
-from bintrack.live.replay_schedule import End, Pacer, Publish, Tick
+from bintrack.live.replay_schedule import End, Gap, Pacer, Publish, Tick
 from bintrack.live.replay_source import Put, ReplaySource
 from bintrack.bus_payloads import Clock, EndOfStream
 from bintrack.message_codec import RESENT, encode
@@ -86,6 +86,11 @@ class ReplayPlayer:
         else:
             again = None
         for action in self.plan:
+            if isinstance(action, Gap):
+                pacer.skip(action.to - action.t)
+                log.info("replay: jumping over %g s of empty event time, from the tick at t=%g s to t=%g s "
+                         "(longer than --max-gap)", action.to - action.t, action.t, action.to)
+                continue
             quick = isinstance(action, Publish) and self.gate.clear()
             if not quick and not await self.gate.ready_for(action, skip_ack):  # (a sample owes no acknowledgement)
                 break

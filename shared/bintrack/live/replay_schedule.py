@@ -61,7 +61,20 @@ class End:
     last: bool
 
 
-Action = Publish | Tick | End
+@dataclass(frozen=True)
+class Gap:
+    """Jump over empty event time from the tick at ``t`` (s) to the next tick at ``to`` (s): a
+    gap between two items longer than ``max_gap``; pacing does not wait through it."""
+
+    t: float
+    to: float
+
+
+Action = Publish | Tick | End | Gap
+
+MAX_GAP = 60.0
+"""s of event time between two items beyond which replay jumps over the gap instead of ticking
+through it (the trackers treat a silence this long as empty time, ``MAX_SILENCE``)"""
 
 TICK_WALL = 0.05
 """s of wall clock between ticks by default: a live estimate waits at most about this long"""
@@ -87,13 +100,15 @@ def default_clock_period(speed: float) -> float:
 
 
 def schedule(passes: Callable[[], Iterable[tuple[float, T | None]]], *, period: float, max_ahead: int = 1,
-             recorded_ticks: bool = False, loop: bool = False) -> Iterator[Action]:
+             recorded_ticks: bool = False, loop: bool = False, max_gap: float = MAX_GAP) -> Iterator[Action]:
     """The replay's actions, in order.
 
     ``passes()`` gives one pass of the source as (event time s, item) pairs in time order;
     with ``recorded_ticks``, a pair whose item is None is a recorded clock tick at that time,
     otherwise ticks are made on the ``period`` grid (s). ``max_ahead`` ≥ 1 ticks may be
-    unacknowledged. ``loop`` repeats the source forever, shifted in time. Raises
+    unacknowledged. ``loop`` repeats the source forever, shifted in time. Where two items (or
+    recorded ticks) are more than ``max_gap`` s apart, a dataset's grid stops at the first tick
+    past the earlier one and a :class:`Gap` leads to the later one's tick. Raises
     :class:`NothingToReplay` when a pass has no item.
     """
     if not (period > 0 and math.isfinite(period)):
@@ -111,10 +126,24 @@ def schedule(passes: Callable[[], Iterable[tuple[float, T | None]]], *, period: 
     while True:
         start = last_item = last_tick = None
         grid = 0  # index of the next grid tick (dataset sources)
+        previous = None  # the time of the last item or recorded tick
         for t, item in passes():
             if start is None:
                 grid = math.floor(t / period)
                 start = t if recorded_ticks else grid * period
+            if previous is not None and t - previous > max_gap:
+                if not recorded_ticks:
+                    while grid * period <= previous + period:  # up to the first tick past the earlier item
+                        last_tick = grid * period
+                        yield tick(last_tick)
+                        grid += 1
+                    grid = max(grid, math.floor(t / period))
+                    to = grid * period
+                else:
+                    to = t
+                if last_tick is not None and to > last_tick:
+                    yield Gap(last_tick + shift, to + shift)
+            previous = t
             if recorded_ticks:
                 if item is None:
                     if last_tick is None or t > last_tick:
@@ -155,6 +184,12 @@ class Pacer:
         if self._origin is not None:
             t0, wall0 = self._origin
             self._origin = (t0, wall0 + seconds)
+
+    def skip(self, seconds: float) -> None:
+        """``seconds`` of event time were jumped over (a :class:`Gap`): they take no wall clock."""
+        if self._origin is not None:
+            t0, wall0 = self._origin
+            self._origin = (t0 + seconds, wall0)
 
     def delay(self, t: float, now: float) -> float:
         """Seconds to wait, from wall-clock time ``now`` (s, monotonic), before event time ``t``

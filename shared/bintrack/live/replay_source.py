@@ -18,25 +18,29 @@ from bintrack.live.recording import Record, open_recording, replay_items, shift_
 from bintrack.live.replay_schedule import Publish
 from bintrack.bus_payloads import Clock, TruthSample
 from bintrack.message_codec import encode, encode_raw_sample
+from bintrack.time_span import TimeSpan
 
 Put = Callable[[str, bytes, bytes | None], None]
 
 
 class ReplaySource:
     """The source at ``path`` (a ``.mcap`` recording, else a dataset folder); raises
-    FormatError for a bad one, having read every row before anything is published."""
+    FormatError for a bad one (a corrupt recording too, unless ``salvage``), having read every
+    row before anything is published."""
 
-    def __init__(self, path: str, filters: Iterable[str], memory_ticks: int):
+    def __init__(self, path: str, filters: Iterable[str], memory_ticks: int, salvage: bool = False):
         path = Path(path)
         if path.suffix == ".mcap":
-            self.recording, self.dataset, self.truth = open_recording(path), None, []
+            self.recording, self.dataset, self.truth, self.span = open_recording(path, salvage), None, [], None
             self.deployment, self.net = self.recording.deployment, self.recording.net
             self.total = None
         else:
             self.recording, self.dataset = None, open_dataset(path)
             self.deployment = self.dataset.deployment
             self.net = self.deployment.name
-            self.total = sum(1 for _ in self.dataset.events())  # validates every row before anything is published
+            # validates every row before anything is published
+            self.span = TimeSpan.of(e.t for e in self.dataset.events())
+            self.total = self.span.count
             # truth.csv, if the dataset has one, is published on `truth` (sorted by t; read and checked now)
             self.truth = sorted(self.dataset.truth(), key=lambda row: row.t) if self.dataset.has_truth else []
         self.filters = [zenoh.KeyExpr(k) for k in filters]
@@ -52,10 +56,11 @@ class ReplaySource:
     def play_on(self, keys: Keys) -> None:
         self.keys = keys
 
-    def largest_step(self, period: float) -> float:
-        """The largest gap between two ticks (s): ``period``, or a recording's own if larger."""
-        if self.recording is None:
-            return period
+    def largest_step(self, period: float, max_gap: float) -> float:
+        """The largest gap between two ticks (s): ``period``, or a recording's own if larger, or
+        a dataset's longest silence if replay jumps over it (longer than ``max_gap``, s)."""
+        if self.recording is None:  # ticks on the grid, or a jump over a silence longer than max_gap
+            return max(period, self.span.silence if self.span.silence > max_gap else 0.0)
         ticks = [t for t, item in replay_items(self.recording) if item is None]
         return max([period, *(b - a for a, b in zip(ticks, ticks[1:]))])
 

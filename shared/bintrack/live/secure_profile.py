@@ -42,6 +42,22 @@ def check_certs(certs: Path, roles: Iterable[str]) -> None:
                 raise FileNotFoundError(f"{path} is missing; make the certificates with `bintrack certs --out {certs}`")
 
 
+def exposed_keys(certs: Path) -> str | None:
+    """One line naming what in ``certs`` other users may read or replace — private keys
+    (``*-key.pem``) not 0600, the folder writable by them — else None."""
+    problems = []
+    mode = certs.stat().st_mode & 0o777
+    if mode & 0o022:
+        problems.append(f"the folder {certs} is {mode:03o} (others may replace its files)")
+    keys = [(key.name, key.stat().st_mode & 0o777) for key in sorted(certs.glob("*-key.pem"))]
+    open_keys = [f"{name} {mode:03o}" for name, mode in keys if mode & 0o077]
+    if open_keys:
+        problems.append("private keys readable by others: " + ", ".join(open_keys))
+    if not problems:
+        return None
+    return f"{'; '.join(problems)}: chmod 600 {certs}/*-key.pem and chmod 700 {certs}"
+
+
 def router_config(certs: Path, listen: Iterable[str], profile: Path = PROFILE) -> zenoh.Config:
     """The secure router's config (``profile``/router.json5) with the certificates of ``certs``
     and listening on ``listen`` (``tls/…`` endpoints)."""

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from bintrack.trackers import runs_on_peers
+from bintrack.view.map_access import is_loopback
 
 
 @dataclass(frozen=True)
@@ -26,8 +27,9 @@ class ServiceCommand:
         return f"bintrack.services.{self.name}"
 
     def argv(self, python: str) -> list[str]:
-        """The command line with the interpreter ``python``."""
-        return [python, "-m", self.module, *self.args]
+        """The command line with the interpreter ``python``; ``-P``: the module is the installed
+        one, never a ``bintrack/`` folder in the directory ``up`` was run from."""
+        return [python, "-P", "-m", self.module, *self.args]
 
 
 def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None = None, speed: float = 1.0,
@@ -152,7 +154,10 @@ def _recorder_and_view(record: str | None, looping: bool, view_port: int | None,
         foxglove = ("--foxglove",) if foxglove_port is not None else ()  # and Foxglove's copy of the file
         services.append(ServiceCommand("recorder", ("--out", record, *until, *foxglove, *bus)))
     if view_port is not None:
-        services.append(ServiceCommand("view", ("--port", str(view_port), "--bind", view_bind, *bus)))
+        # beyond loopback: `up` has checked for a token itself (and hands it over in the
+        # environment); a container's map is published on the host's loopback alone
+        open_bind = () if is_loopback(view_bind) else ("--no-token",)
+        services.append(ServiceCommand("view", ("--port", str(view_port), "--bind", view_bind, *open_bind, *bus)))
     if foxglove_port is not None:
         services.append(ServiceCommand("foxglove_bridge", ("--port", str(foxglove_port), "--bind", view_bind, *bus)))
     return services

@@ -9,7 +9,7 @@ most ``capacity`` items, and past that they are discarded and the next send is a
 snapshot instead, so a slow page never grows the server's memory.
 
 Routes: ``/`` the page, ``/static/…`` its files (Leaflet vendored), ``/ws`` the WebSocket,
-``/state.json`` the current snapshot (for scripts).
+``/state.json`` the current snapshot (for scripts); every one behind :mod:`.map_access`.
 """
 
 from __future__ import annotations
@@ -22,9 +22,11 @@ from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
+from urllib.parse import quote
 
 from aiohttp import WSMsgType, web
 
+from bintrack.view.map_access import MapAccess
 from bintrack.view.map_messages import Item
 from bintrack.view.map_state import MapState
 
@@ -168,9 +170,10 @@ class LivePage:
         self.hub.feeds.discard(self.feed)
 
 
-def make_app(source: Source) -> web.Application:
-    """The aiohttp application serving ``source``'s pictures."""
-    app = web.Application()
+def make_app(source: Source, token: str | None = None) -> web.Application:
+    """The aiohttp application serving ``source``'s pictures, behind the checks of
+    :class:`~bintrack.view.map_access.MapAccess` (Host, Origin, and ``token`` if given)."""
+    app = web.Application(middlewares=[MapAccess(token).middleware()])
     app["pages"] = set()
 
     async def index(request: web.Request) -> web.FileResponse:
@@ -267,13 +270,15 @@ async def start_site(app: web.Application, sock: socket.socket) -> web.AppRunner
     return runner
 
 
-def served_line(service: str, bind: str, port: int, sock: socket.socket) -> str:
+def served_line(service: str, bind: str, port: int, sock: socket.socket, token: str | None = None) -> str:
     """The one line that says where the map is served (and that ``port`` was taken, if so)."""
     served = sock.getsockname()[1]
     taken = f" (port {port} was taken)" if port not in (0, served) else ""
-    return f"{service}: map on {page_url(bind, served)}{taken}"
+    every = f" (on every interface, {bind or '0.0.0.0'})" if bind in ("0.0.0.0", "", "::") else ""
+    return f"{service}: map on {page_url(bind, served, token)}{every}{taken}"
 
 
-def page_url(bind: str, port: int) -> str:
-    host = "127.0.0.1" if bind in ("0.0.0.0", "") else ("[::1]" if bind == "::" else bind)
-    return f"http://{host}:{port}/"
+def page_url(bind: str, port: int, token: str | None = None) -> str:
+    """The URL a browser opens: on every interface (0.0.0.0, ::), this host's name; with the token."""
+    host = socket.gethostname() if bind in ("0.0.0.0", "", "::") else (f"[{bind}]" if ":" in bind else bind)
+    return f"http://{host}:{port}/" + (f"?token={quote(token, safe='')}" if token else "")

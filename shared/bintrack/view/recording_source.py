@@ -28,6 +28,7 @@ from bintrack.keys import parse_key
 from bintrack.message_codec import MessageError, decode
 from bintrack.live.recording import KIND_TYPES, open_recording
 from bintrack.view.map_messages import DRAWN_KINDS, Item, message_item
+from bintrack.view.map_access import check_bind, token_from
 from bintrack.view.map_server import DEFAULT_PAGE_QUEUE, PageFeed, listening_socket, make_app, served_line, start_site
 from bintrack.view.map_state import DEFAULT_TAIL, MapState
 
@@ -49,8 +50,11 @@ class RecordingSource:
     FormatError (one line) for a file that is not a bintrack recording; CommandError for one
     that was never finalised (it has no index to seek in)."""
 
-    def __init__(self, path: Path | str, tail: float = DEFAULT_TAIL, capacity: int = DEFAULT_PAGE_QUEUE):
-        self.recording = open_recording(path)
+    def __init__(self, path: Path | str, tail: float = DEFAULT_TAIL, capacity: int = DEFAULT_PAGE_QUEUE,
+                 salvage: bool = False):
+        self.recording = open_recording(path, salvage)
+        if self.recording.note() is not None:
+            log.warning("view: %s; its bad chunks are skipped", self.recording.note())
         if not self.recording.complete:
             raise CommandError(f"{path}: the recording was never finalised, so it has no index to seek in; "
                                "`mcap recover` makes a finalised copy")
@@ -87,8 +91,15 @@ class RecordingSource:
         """(log time s, item) of the drawn messages from ``start`` (s, inclusive) to ``end``
         (s, inclusive; None: the end), in log-time order; a bad payload is skipped and counted."""
         end_ns = None if end is None else _ns(end) + 1
-        for _, channel, message in reader.iter_messages(topics=self.topics, start_time=_ns(start), end_time=end_ns,
-                                                        log_time_order=True):
+        messages = reader.iter_messages(topics=self.topics, start_time=_ns(start), end_time=end_ns, log_time_order=True)
+        while True:
+            try:
+                _, channel, message = next(messages)
+            except StopIteration:
+                return
+            except Exception as exc:  # a bad chunk (--salvage): assorted types from the reader
+                self._bad_chunk(exc)
+                return
             kind = parse_key(channel.topic).kind
             try:
                 decoded = decode(KIND_TYPES[kind], message.data)
@@ -102,6 +113,15 @@ class RecordingSource:
             item = message_item(decoded)
             if item is not None:
                 yield message.log_time / 1e9, item
+
+
+    def _bad_chunk(self, exc: Exception) -> None:
+        """A chunk that does not read ends the page's stream there, said once."""
+        self.bad += 1
+        if not self._logged_bad:
+            self._logged_bad = True
+            log.warning("view: %s: a chunk does not read (%s); the picture stops before it", self.path,
+                        type(exc).__name__)
 
 
 def _drawn(topic: str) -> bool:
@@ -123,7 +143,7 @@ class RecordingPage:
         self.playing = False
         self.speed = 1.0
         self._handle = open(source.path, "rb")
-        self._reader = SeekingReader(self._handle)
+        self._reader = SeekingReader(self._handle, validate_crcs=True)
         self._stream: Iterator[tuple[float, Item]] | None = None
         self._next: tuple[float, Item] | None = None
         self._lock = asyncio.Lock()
@@ -223,16 +243,18 @@ def _number(value) -> bool:
 
 def serve_recording(args: argparse.Namespace) -> int:
     """``bintrack view RECORDING.mcap``: serve the page on the recording until Ctrl-C/SIGTERM."""
-    source = RecordingSource(args.recording, tail=args.tail)
+    token = token_from(args.token)
+    check_bind(args.bind, token)
+    source = RecordingSource(args.recording, tail=args.tail, salvage=args.salvage)
 
     async def main() -> int:
         try:
             sock = listening_socket(args.bind, args.port)
-            runner = await start_site(make_app(source), sock)
+            runner = await start_site(make_app(source, token), sock)
         except OSError as exc:
             raise CommandError(str(exc)) from None
         t0, t1 = source.range
-        print(f"{served_line('view', args.bind, args.port, sock)} ({source.path.name}: {t1 - t0:.1f} s of event time, "
+        print(f"{served_line('view', args.bind, args.port, sock, token)} ({source.path.name}: {t1 - t0:.1f} s of event time, "
               f"{len(source.recording.deployment.sensors)} sensors)", file=sys.stderr, flush=True)
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()

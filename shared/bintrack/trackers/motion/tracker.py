@@ -17,6 +17,9 @@ is within ±P/2 of the nominal one — the simulator samples all sensors at exac
 phases or clock offsets up to ±P/2 are tolerated, beyond that a sample is filed in the
 neighbouring period. A sensor with a longer period keeps its last status in between.
 
+**Silences.** Periods more than ``MAX_SILENCE`` s after the last transition are empty time: when
+a transition ends such a gap, they are passed over without an estimate.
+
 **When an estimate is emitted.** Period k is complete when ``flush(t)`` has t at or after the
 window's end (no transition of it can come any more) and some transition of period k or later
 has been seen: a later transition proves that the target was still reported; after the last
@@ -42,6 +45,7 @@ from bintrack.trackers.motion.ppr_estimator import ppr_fit
 from bintrack.trackers.motion.svm_estimator import svm_fit, svm_velocity
 from bintrack.trackers.motion.velocity_plane import velocity_plane
 from bintrack.errors import TrackerConfigError
+from bintrack.time_span import MAX_SILENCE
 from bintrack.bus_payloads import Transition, VelocityEstimate
 from bintrack.deployment_model import Deployment, MotionSensor
 
@@ -96,9 +100,12 @@ class _PeriodTracker:
         if self._next is None:
             self._next = k
         # transitions come in event-time order: every period before k is over and, with this
-        # transition, known to have been reported
-        while self._next < k:
+        # transition, known to have been reported; but after MAX_SILENCE s without a transition
+        # the rest of the gap is empty time, passed over
+        quiet_until = k if self._last_seen is None else self._last_seen + math.ceil(MAX_SILENCE / self.period)
+        while self._next < min(k, quiet_until + 1):
             out.extend(self._complete(self._next))
+        self._next = max(self._next, k)
         self._pending.setdefault(max(k, self._next), []).append((i, int(transition.value)))
         self._last_seen = k if self._last_seen is None else max(self._last_seen, k)
         return out

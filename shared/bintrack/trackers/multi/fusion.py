@@ -34,6 +34,7 @@ from bintrack.errors import TrackerConfigError
 from bintrack.bus_payloads import PositionReport, PositionReports, Transition
 from bintrack.deployment_model import Deployment, DiskSensor, SectorSensor
 from bintrack.sensing import reports_presence
+from bintrack.time_span import MAX_SILENCE
 from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.fit_scan import weighted_report
 from bintrack.trackers.multi.target_fit import TargetFit
@@ -250,6 +251,8 @@ class Scan:
 
     t: float
     detecting: np.ndarray
+    skipped: int = 0
+    """scans passed over just before this one (a silence longer than ``MAX_SILENCE``)"""
 
 
 class ScanFusion:
@@ -258,8 +261,11 @@ class ScanFusion:
     Scan k is at event time k·P (P the scan period) and sees every sensor's status as of that
     time (the last sample at or before it). It is emitted once no transition at or before k·P
     can come (``flush``). Scans run from the first one at or after the first transition to the
-    first one at or after the last transition.
+    first one at or after the last transition. After ``MAX_SILENCE`` s without a transition no
+    scan is emitted; the next transition's scan follows, counting those passed over.
     """
+
+    _skipped = 0  # scans passed over before the next one (a class default: checkpoints made before it)
 
     def __init__(self, deployment: Deployment, config: FusionConfig = FusionConfig()):
         self.grid = GridFusion(deployment, config)
@@ -277,6 +283,9 @@ class ScanFusion:
     def update(self, transition: Transition) -> list[Scan]:
         """Apply ``transition`` after emitting the scans strictly before its time."""
         out = self.flush(math.nextafter(transition.t, -math.inf))
+        if self._next is not None and transition.t - self._last_t > MAX_SILENCE and self.scan_of(transition.t) > self._next:
+            self._skipped = self.scan_of(transition.t) - self._next
+            self._next += self._skipped
         i = self.grid.index.get(transition.sensor)
         if i is not None:
             self._detecting[i] = reports_presence(self._sensors[transition.sensor], transition.value)
@@ -291,9 +300,11 @@ class ScanFusion:
             return []
         if math.isinf(t):
             t = self.scan_of(self._last_t) * self.period
+        t = min(t, self._last_t + MAX_SILENCE)
         out = []
         while (scan_t := round(self._next * self.period, 9)) <= t:
-            out.append(Scan(t=scan_t, detecting=self._detecting.copy()))
+            out.append(Scan(t=scan_t, detecting=self._detecting.copy(), skipped=self._skipped))
+            self._skipped = 0
             self._next += 1
         return out
 

@@ -107,6 +107,11 @@ class OnlineMCMCDA(ScanWindow, ChainMoves, TrackIdentity):
                 self._owner.update(dict.fromkeys(track.reports, track.label))
         return published
 
+    def skip(self, count: int) -> None:
+        """``count`` scans were passed over (a long silence, ``MAX_SILENCE``): the next scan's
+        number is that much further on, so no report can follow one from before the gap."""
+        self._scan += count
+
     # ------------------------------------------------------------------ scoring
 
     def _score(self, track: ChainTrack) -> float:

@@ -89,6 +89,7 @@ class MCMCDATracker:
     def _track(self, scans: list[Scan]) -> list[PositionReports | TrackSet]:
         out: list[PositionReports | TrackSet] = []
         for snapshot in scans:
+            self.mcmcda.skip(snapshot.skipped)
             expected = self.mcmcda.expected(snapshot.t) if self._track_aided else ()
             scan = self.fusion.fuse(snapshot, expected)
             extra = sorted(self._pending.pop(self.fusion.scan_of(scan.t), []), key=lambda e: (e[0], e[1]))
