@@ -37,6 +37,7 @@ from bintrack.sensing import reports_presence
 from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.fit_scan import weighted_report
 from bintrack.trackers.multi.target_fit import TargetFit
+from bintrack.trackers.multi.soft_footprint import SoftFootprint
 from bintrack.trackers.multi.track_expectation import Expectation
 
 DEFAULT_SCAN = 0.5  # s, when the sensors are event-driven (no sampling period)
@@ -61,6 +62,8 @@ class GridFusion:
             raise TrackerConfigError(f"fusion expected_split_gain must be at least 0 nats, got {config.expected_split_gain}")
         if not config.shared_edge >= 0:
             raise TrackerConfigError(f"fusion shared_edge must be at least 0 sensing ranges, got {config.shared_edge}")
+        if config.soft_spread is not None and not config.soft_spread > 0:
+            raise TrackerConfigError(f"fusion soft_spread must be positive, got {config.soft_spread}")
         if config.threshold < 1:
             raise TrackerConfigError(f"fusion threshold n_d must be at least 1, got {config.threshold}")
         self.config = config
@@ -129,6 +132,8 @@ class GridFusion:
         """per cell: the sensing range of the sensor it is assigned to, units"""
         self.max_range = float(ranges.max())
         """the longest sensing range, units"""
+        self.soft = None if config.soft_spread is None else SoftFootprint(positions, ranges * config.soft_spread, pd, pfa)
+        """real PIR: the Gaussian footprints that place a "fit" target's report (``FusionConfig.soft_spread``)"""
         self._fit = TargetFit(self)
 
     def depth(self, x: float, y: float) -> float:
