@@ -20,8 +20,8 @@ ceiling-PIR recording of Milan et al., ACCV 2014 workshops; reported on r1-mediu
   falls smoothly with distance, 0.7 under it, 0.3 at 1–1.5 m, 0.1 at 1.5–2 m;
 * ``expected_split_gain``: 8 nats, a track's blob is split into two people only on strong
   evidence (footprints of neighbouring sensors overlap, and one walker lights several);
-* ``max_misses`` 5 and ``coast`` 3: a PIR sees motion, and a person who slows down or stands
-  fires fewer sensors; their track is shown for 1.5 s without a report and kept 2.5 s;
+* ``max_misses`` 5 (d̄): a PIR sees motion, and a person who slows down or stands fires fewer
+  sensors; their track survives 2.5 s without a report (still shown only one scan past it);
 * births: λ_b ten times lower farther than 1.5 m from the walls (``MCMCDAConfig.birth_edge``):
   people enter through the doors.
 """
@@ -43,7 +43,6 @@ PIR_SPLIT_GAIN = 8.0
 PIR_THRESHOLD = 2
 PIR_SPREAD = 0.5
 PIR_MAX_MISSES = 5
-PIR_COAST = 3
 DOOR_DEPTH = 1.5
 """m: people are born within this distance of the room's walls (its doors)"""
 
@@ -60,7 +59,7 @@ def pir_settings(deployment: Deployment, fusion: FusionConfig, config: MCMCDACon
     radius = statistics.median(s.range for s in deployment.sensors if isinstance(s, DiskSensor))
     radius_m = radius * deployment.metres_per_unit
     config = replace(config, extra_variance=(radius_m / FOOTPRINT_SIGMAS) ** 2, pd=PIR_REPORT_PD,
-                     birth_rate=PIR_BIRTH_RATE, max_misses=PIR_MAX_MISSES, coast=PIR_COAST)
+                     birth_rate=PIR_BIRTH_RATE, max_misses=PIR_MAX_MISSES)
     if DOOR_DEPTH is not None:
         r = deployment.region
         m = deployment.metres_per_unit
