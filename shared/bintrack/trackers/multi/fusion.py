@@ -50,6 +50,10 @@ class GridFusion:
     model). Sector sensors count as present whenever they report a sector.
     """
 
+    soft: SoftFootprint | None = None
+    """real PIR: the Gaussian footprints that place a "fit" target's report
+    (``FusionConfig.soft_spread``); a class default, so that a grid pickled before it existed loads"""
+
     def __init__(self, deployment: Deployment, config: FusionConfig = FusionConfig()):
         sensors = [s for s in deployment.sensors if isinstance(s, (DiskSensor, SectorSensor))]
         if not sensors:
@@ -132,8 +136,8 @@ class GridFusion:
         """per cell: the sensing range of the sensor it is assigned to, units"""
         self.max_range = float(ranges.max())
         """the longest sensing range, units"""
-        self.soft = None if config.soft_spread is None else SoftFootprint(positions, ranges * config.soft_spread, pd, pfa)
-        """real PIR: the Gaussian footprints that place a "fit" target's report (``FusionConfig.soft_spread``)"""
+        if config.soft_spread is not None:
+            self.soft = SoftFootprint(positions, ranges * config.soft_spread, pd, pfa)
         self._fit = TargetFit(self)
 
     def depth(self, x: float, y: float) -> float:

@@ -5,11 +5,13 @@ distance d to the person, roughly as a Gaussian (``benchmarks/real_pir_statistic
 
     p_i(d) = 1 − (1 − pfa_i)(1 − pd_i·exp(−d² / 2σ_i²)),
 
-σ_i the sensor's ``spread`` as ``bintrack calibrate`` fits it. The fusion still finds and counts
-the targets of a scan with the disks (:mod:`.target_fit`); a target's position report is then
-the posterior mean and covariance of its position under this likelihood (flat prior) over the
-cells near it, given the other targets where they were placed. Sensors farther than a target's
-reach plus ``_SIGMAS`` σ take no part (their factor is the same at every cell).
+σ_i = ``FusionConfig.soft_spread`` × the sensor's fitted range. It is the soft counterpart of the
+detection part of paper 004's eq. (4), which has p_i = pd_i inside the disk and pfa_i outside.
+The fusion still finds and counts the targets of a scan with the disks (:mod:`.target_fit`); a
+target's position report is then the posterior mean and covariance of its position under this
+likelihood (flat prior) over the cells near it, given the other targets where they were placed.
+Sensors farther than a target's reach plus ``_SIGMAS`` σ take no part (their factor is the same
+at every cell).
 """
 
 from __future__ import annotations
@@ -18,8 +20,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 _SIGMAS = 3.0
-_REACH = 1.5
-"""the cells of a report: within this many sensing ranges of the fitted target's cell"""
 
 
 class SoftFootprint:
@@ -40,7 +40,8 @@ class SoftFootprint:
 
     def log_likelihood(self, cells: np.ndarray, detecting: np.ndarray, others: np.ndarray, reach: float) -> np.ndarray:
         """Per cell (n × 2, units): log P(the scan's detections | a target there and the other
-        targets at ``others`` (m × 2)), up to a constant, over the sensors near the cells."""
+        targets at ``others`` (m × 2, units)), nats, up to a constant, over the sensors within
+        ``reach`` (units) plus 3σ of the cells' centre; ``detecting`` per sensor, 1 = fired."""
         centre = cells.mean(axis=0)
         sensors = np.asarray(self.tree.query_ball_point(centre, r=reach + _SIGMAS * self.max_spread), dtype=int)
         if sensors.size == 0:
