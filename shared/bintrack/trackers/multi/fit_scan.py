@@ -21,6 +21,8 @@ _MIN_VARIANCE_CELLS = 1.0 / 12.0
 _MAX_SWEEPS = 10
 # Rounds of the coordinate ascent that places the two targets of a split.
 _SPLIT_ROUNDS = 4
+# real PIR (soft footprints): a report's cells lie within this many sensing ranges of its target
+_SOFT_REACH = 1.5
 
 
 @dataclass
@@ -269,7 +271,14 @@ class FitScan:
                                                                r=float(self.grid.cell_range[target.cell])), dtype=int)
         gain = self._gains_on(near, k)
         here = float(gain[np.flatnonzero(near == target.cell)[0]])
-        return weighted_report(self.grid.cells[near], np.exp(gain - here), self.grid.cell, weight=max(here, 0.0))
+        soft = self.grid.soft
+        if soft is None:
+            return weighted_report(self.grid.cells[near], np.exp(gain - here), self.grid.cell, weight=max(here, 0.0))
+        reach = _SOFT_REACH * float(self.grid.cell_range[target.cell])
+        cells = np.asarray(self.grid.cell_tree.query_ball_point(self.grid.cells[target.cell], r=reach), dtype=int)
+        others = self.grid.cells[[t.cell for j, t in enumerate(self.targets) if j != k]].reshape(-1, 2)
+        log_l = soft.log_likelihood(self.grid.cells[cells], self.hits, others, reach)
+        return weighted_report(self.grid.cells[cells], np.exp(log_l - log_l.max()), self.grid.cell, weight=max(here, 0.0))
 
     def shared_copies(self, reports: list[PositionReport], expected) -> list[PositionReport]:
         """Copies of reports for established tracks hidden in another track's blob (module docstring, 6)."""

@@ -38,6 +38,7 @@ from bintrack.time_span import MAX_SILENCE
 from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.fit_scan import weighted_report
 from bintrack.trackers.multi.target_fit import TargetFit
+from bintrack.trackers.multi.soft_footprint import SoftFootprint
 from bintrack.trackers.multi.track_expectation import Expectation
 
 DEFAULT_SCAN = 0.5  # s, when the sensors are event-driven (no sampling period)
@@ -49,6 +50,10 @@ class GridFusion:
     pd and pfa come from each sensor (pd 1 and pfa 0 where the deployment gives none, the ideal
     model). Sector sensors count as present whenever they report a sector.
     """
+
+    soft: SoftFootprint | None = None
+    """real PIR: the Gaussian footprints that place a "fit" target's report
+    (``FusionConfig.soft_spread``); a class default, so that a grid pickled before it existed loads"""
 
     def __init__(self, deployment: Deployment, config: FusionConfig = FusionConfig()):
         sensors = [s for s in deployment.sensors if isinstance(s, (DiskSensor, SectorSensor))]
@@ -62,6 +67,8 @@ class GridFusion:
             raise TrackerConfigError(f"fusion expected_split_gain must be at least 0 nats, got {config.expected_split_gain}")
         if not config.shared_edge >= 0:
             raise TrackerConfigError(f"fusion shared_edge must be at least 0 sensing ranges, got {config.shared_edge}")
+        if config.soft_spread is not None and not config.soft_spread > 0:
+            raise TrackerConfigError(f"fusion soft_spread must be positive, got {config.soft_spread}")
         if config.threshold < 1:
             raise TrackerConfigError(f"fusion threshold n_d must be at least 1, got {config.threshold}")
         self.config = config
@@ -130,6 +137,8 @@ class GridFusion:
         """per cell: the sensing range of the sensor it is assigned to, units"""
         self.max_range = float(ranges.max())
         """the longest sensing range, units"""
+        if config.soft_spread is not None:
+            self.soft = SoftFootprint(positions, ranges * config.soft_spread, pd, pfa)
         self._fit = TargetFit(self)
 
     def depth(self, x: float, y: float) -> float:

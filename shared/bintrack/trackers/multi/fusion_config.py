@@ -59,6 +59,10 @@ class FusionConfig:
     has as likely left"""
     track_aided: bool = True
     """the MCMCDA tracker passes its tracks' expectations to the "fit" fusion"""
+    soft_spread: float | None = None
+    """real PIR: a "fit" target's report is its position's posterior under Gaussian footprints of
+    σ = soft_spread × each sensor's range (:mod:`.soft_footprint`); None: under the disks (the
+    paper's model)"""
     explained: float = 1.0
     """"explain": a report explains the detections of sensors within this multiple of their
     sensing range of it"""

@@ -70,6 +70,7 @@ from scipy.spatial import cKDTree
 
 from bintrack.bus_payloads import PositionReport
 from bintrack.trackers.multi.fit_scan import FitScan
+from bintrack.trackers.multi.soft_footprint import SoftFootprint
 from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.track_expectation import Expectation
 
@@ -80,7 +81,8 @@ _SPLIT_ANGLES = np.arange(4) * np.pi / 4
 class FitGrid(Protocol):
     """What the fit reads of the grid (:class:`bintrack.trackers.multi.fusion.GridFusion`):
     cells of side ``cell`` (units) at ``cells`` (n × 2), the sparse cells × sensors ``cover``, each
-    cell's sensing range ``cell_range``, the per-sensor log likelihood ratios of eq. (4)."""
+    cell's sensing range ``cell_range``, the per-sensor log likelihood ratios of eq. (4), and for
+    real PIR the soft footprints that place a report (``soft``)."""
 
     config: FusionConfig
     ids: list[str]
@@ -92,6 +94,7 @@ class FitGrid(Protocol):
     log_hit_ratio: np.ndarray
     log_miss_ratio: np.ndarray
     shared_speed: float
+    soft: SoftFootprint | None
 
     def depth(self, x: float, y: float) -> float: ...
 
