@@ -91,6 +91,11 @@ class OwnToken:
         return True
 
 
+# The get ends when the router has answered, at once for a token that is not there; the timeout
+# only bounds a router too busy to answer, which must not make a real sender's token look absent.
+TOKEN_QUERY_TIMEOUT = 10.0  # s
+
+
 def token_present(session: zenoh.Session, key: str) -> bool:
     """Whether a liveliness token on ``key`` is declared (a blocking get)."""
-    return any(reply.ok is not None for reply in session.liveliness().get(key, timeout=1.0))
+    return any(reply.ok is not None for reply in session.liveliness().get(key, timeout=TOKEN_QUERY_TIMEOUT))
