@@ -153,7 +153,8 @@ def test_online_output_is_the_estimate_known_when_each_pass_closed(testbed, stre
     # better than phases 1–3 alone (the first estimates before revisions existed), passes 5 on
     _, _, plain = _stream(testbed, revise=False)
     paths = truth_paths(dataset.truth())
-    ours, old = ([e.entry for e in entry_exit_errors(output_objects(o), paths) if e.object >= 5] for o in (first, plain))
+    ours, old = ([e.entry for e in entry_exit_errors(output_objects(rows), paths) if e.object >= 5]
+                 for rows in (first, plain))
     assert np.mean(ours) < np.mean(old)
     online, final = tmp_path / "online.csv", tmp_path / "final.csv"
     assert cli.main(["track", str(testbed), "--tracker", "adaptive-basis", "--online", "--out", str(online)]) == 0
