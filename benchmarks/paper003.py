@@ -184,7 +184,7 @@ def testbed_run(job: tuple[int, float, int, str]) -> dict:
     sim = simulate("laser-testbed", seed, passes=passes, jitter=jitter)
     with tempfile.TemporaryDirectory() as tmp:
         dataset = open_dataset(write_dataset(Path(tmp), sim.deployment, sim.events, sim.truth))
-        tracker = AdaptiveBasisTracker(dataset.deployment, phase2=phase2, revise=False)  # online estimates
+        tracker = AdaptiveBasisTracker(dataset.deployment, phase2=phase2, revise=False)  # phases 1–3 alone (no re-solve)
         seconds = []
         close = tracker._close
 
@@ -351,7 +351,7 @@ def testbed(folder: Path) -> dict:
     from bintrack.trackers.laser.tracker import AdaptiveBasisTracker
 
     dataset = open_dataset(folder)
-    tracker = AdaptiveBasisTracker(dataset.deployment, revise=False)  # online estimates, as Figs. 10–11 show
+    tracker = AdaptiveBasisTracker(dataset.deployment, revise=False)  # phases 1–3 alone, as Figs. 10–11 show
     started = time.perf_counter()
     rows = output_objects(run_tracker(dataset, tracker))
     elapsed = time.perf_counter() - started

@@ -2,8 +2,8 @@
 
 Per testbed (``bintrack simulate laser-testbed --seed S --jitter J --passes N --lean 63 --offset 0.2``
 unless told otherwise) and per pass: the entry and exit errors (ft) of the tracker's online
-estimate (its first, ``bintrack track --online``) and of its final one (the latest revision,
-``bintrack track``), beside
+estimate (its first, ``bintrack track --online``: the re-solve at the pass's close) and of its
+final one (the latest revision, ``bintrack track``), beside
 
 * **known**: the bound with the beams known exactly, the pass's own geometry
   (``pass_bound.known_beams_bound``);
@@ -93,7 +93,7 @@ def summarise(results: list[dict], label: str) -> dict:
     print(f"\n{label}: {len(results)} testbeds, passes {FIRST_SCORED}..{results[0]['online'].shape[0]}; "
           "per testbed the mean over its passes, then mean ± sd over testbeds (ft)")
     print(f"{'':28}{'entry':>18}{'exit':>18}")
-    for k, text in (("online", "ours, online (first)"), ("at_close", "ours, at close (+ revision)"),
+    for k, text in (("online", "ours, online (first)"), ("at_close", "ours, at close (latest then)"),
                     ("final", "ours, final (latest revision)"),
                     ("known", "bound, beams known"), ("unknown_online", "bound, beams from passes so far"),
                     ("unknown_final", "bound, beams from all passes")):
@@ -153,12 +153,12 @@ def passes_near_bound(results: list[dict], kind: str = "online", factor: float =
 
 def scaling(pool, passes: int, jitter: float = 0.02) -> None:
     """Seconds per pass (median by range of pass numbers) on one long testbed, with the
-    revisions and without them (the online estimates alone: the tracker before revisions)."""
+    revisions and without them (phases 1–3 alone: the tracker before revisions)."""
     runs = list(pool.map(bound_run, [(1, jitter, passes, 63.0, 0.2, revise) for revise in (True, False)]))
     chunks = np.array_split(np.arange(FIRST_SCORED - 1, passes), 5)
     print(f"\ntime per pass, one testbed of {passes} passes, seed 1, in one run (median ms by range of passes):")
     print(f"{'passes':>22}" + "".join(f"{f'{c[0] + 1}–{c[-1] + 1}':>10}" for c in chunks))
-    for r, label in zip(runs, ("with revisions", "online only")):
+    for r, label in zip(runs, ("with revisions", "phases 1–3 only")):
         print(f"{label:>22}" + "".join(f"{np.median(r['seconds'][c]) * 1e3:>10.1f}" for c in chunks))
     ratio = [np.median(runs[0]["seconds"][c]) / np.median(runs[1]["seconds"][c]) for c in chunks]
     print(f"{'ratio':>22}" + "".join(f"{x:>10.2f}" for x in ratio))

@@ -3,9 +3,10 @@
 After every pass the tracker's state (phases 1–3) is re-solved in real-world coordinates
 (:mod:`.realworld_solve`: time residuals, calibration passes and known positions held exact),
 from the previous re-solve's beams and from the beams through the calibration passes' crossing
-points; the solution of smaller residual variance is kept. A pass already published gets a revised
-``LineObjectEstimate`` (``revision`` 1, 2, …) when its entry or exit point has moved by more than
-the standard deviation it was last published with. A pass is *settled* — never checked again —
+points; the solution of smaller residual variance is kept. The tracker publishes a pass's first
+estimate from the re-solve at its close (:meth:`Revisions.estimate`). A pass already published
+gets a revised ``LineObjectEstimate`` (``revision`` 1, 2, …) when its entry or exit point has
+moved by more than the standard deviation it was last published with. A pass is *settled* — never checked again —
 once the beams' share of its entry and exit covariance allows no move above
 :data:`SETTLE_UNITS` (3 standard deviations): better beams cannot change it by more. At the end of
 the stream (:meth:`Revisions.final`) every pass whose last published point differs from the final

@@ -34,13 +34,16 @@ all this.
 Output: one :class:`LineObjectEstimate` per pass, in pass order, each exactly once — the passes
 before phase 1 all at once when phase 1 succeeds, later ones when they complete — and then, with
 ``revise`` (default), revised estimates of passes already given (``revision`` 1, 2, …;
-:mod:`.revisions`), after each pass and at the end of the stream (``flush(inf)``). ``t_first`` and
+:mod:`.revisions`), after each pass and at the end of the stream (``flush(inf)``). With ``revise``
+a pass's first estimate is the best known when it closes: the re-solve over the passes so far,
+this one included (phases 1–3's estimate where the re-solve fails or has none of it). ``t_first`` and
 ``t_last`` are the pass's first and last detection times (s); entry and exit are where the
 estimated straight path crosses the region's border (units; the positions at the first and last
 detection if the path misses the region); ``vx``, ``vy`` its real-world velocity (units/s, equal
 to (exit − entry) / (exit time − entry time)); ``entry_sd``, ``exit_sd`` the standard deviations
 (units, √ of the 2 × 2 covariance's trace) of the path's position at the entry and exit times,
-from eq. 5's least-squares covariance (the real-world frame counted as exact). A pass with fewer
+from eq. 5's least-squares covariance (the real-world frame counted as exact), or from the
+re-solve's covariance when it gave the estimate. A pass with fewer
 than four detections by estimated beams cannot be estimated and is skipped (listed in
 :attr:`skipped`).
 """
@@ -296,10 +299,13 @@ class AdaptiveBasisTracker:
         if frame is None:
             return []
         self.frame, self.frame_source = frame, frame.source
+        resolved = self.revisions is not None and self._resolve()
         out = []
         known = self.basis.object_known()
         for obj in range(self._emitted, self.basis.objects):
-            estimate = self._estimate(obj) if known[obj] else None
+            estimate = None
+            if known[obj]:
+                estimate = (resolved and self._estimate_at_close(obj)) or self._estimate(obj)
             if estimate is None:
                 self.skipped.append(obj + 1)
             else:
@@ -307,13 +313,21 @@ class AdaptiveBasisTracker:
                 if self.revisions is not None:
                     self.revisions.publish(obj, estimate)
         self._emitted = self.basis.objects
-        if self.revisions is not None:
-            out += self._revise()
+        if resolved:
+            out += self.revisions.check(self.basis.t_refs)
         return out
 
-    def _revise(self) -> list[LineObjectEstimate]:
-        """Re-solve every pass in real-world coordinates (:mod:`.revisions`) and return the
-        revised estimates of passes that moved by more than their published sd."""
+    def _estimate_at_close(self, obj: int) -> LineObjectEstimate | None:
+        """Pass ``obj``'s first estimate from the re-solve over the passes so far (this one
+        included), or None where the re-solve has none."""
+        t_first, t_last = self.passes[obj]
+        template = LineObjectEstimate(object=obj + 1, t_first=t_first, t_last=t_last, entry_x=0.0, entry_y=0.0,
+                                      exit_x=0.0, exit_y=0.0, vx=0.0, vy=0.0)
+        got = self.revisions.estimate(obj, float(self.basis.t_refs[obj]), template)
+        return None if got is None else got[0]
+
+    def _resolve(self) -> bool:
+        """Re-solve every pass in real-world coordinates (:mod:`.revisions`); False if it failed."""
         basis, frame = self.basis, self.frame
         lines = np.where(basis.line_known()[:, None], frame.lines(np.nan_to_num(basis.lines)), np.nan)
         centres, velocities = frame.points(basis.centres), frame.vectors(basis.velocities)
@@ -326,9 +340,7 @@ class AdaptiveBasisTracker:
                 v = (np.asarray(cal.exit, dtype=float) - cal.entry) / (cal.t_exit - cal.t_entry)
                 c = np.asarray(cal.entry, dtype=float) + v * (basis.t_refs[obj] - cal.t_entry)
                 fixed[obj] = np.array([v[0], c[0], v[1], c[1]])
-        if self.revisions.resolve(basis.times, basis.t_refs, lines, passes, fixed) is None:
-            return []
-        return self.revisions.check(basis.t_refs)
+        return self.revisions.resolve(basis.times, basis.t_refs, lines, passes, fixed) is not None
 
     def _point_sds(self, obj: int, times: tuple[float, float]) -> list[float | None]:
         """Standard deviations (units, √ trace) of pass ``obj``'s real-world positions at
