@@ -32,6 +32,7 @@ from bintrack.argtypes import positive_float, size_bytes
 from bintrack.errors import CommandError
 from bintrack.keys import ParsedKey
 from bintrack.live.checkpoint import RecorderCheckpoint
+from bintrack.live.disk_full import MODES, RETRY, DiskFull
 from bintrack.live.end_of_stream import UpstreamDone
 from bintrack.live.record_filter import RecordFilter
 from bintrack.live.recording_files import RecordingFiles
@@ -60,6 +61,10 @@ def add_arguments(parser: argparse.ArgumentParser, until_default: str = "eos", n
                         help="as each file is finalised, also write FILE.foxglove.mcap beside it: every message as "
                         "JSON and the scene as foxglove.SceneUpdate, the schemas `up --foxglove` serves, which "
                         "Foxglove opens directly")
+    parser.add_argument("--on-disk-full", choices=MODES, default="stop",
+                        help="when the file cannot be written (a full or failing disk): finalise it with what was "
+                        "written and exit with status 3 (stop), or hold event time until it can be written again "
+                        "(pause) (default: %(default)s)")
     parser.add_argument("--id", help="instance id (default: host-pid)")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     add_bus_arguments(parser, net_default=net_default)
@@ -89,6 +94,8 @@ class Recorder(Service):
         self.upstream = UpstreamDone(UPSTREAM)
         self.eos: float | None = None
         self.last_tracks = float("-inf")  # event time of the newest track set recorded
+        self.disk = DiskFull(args.on_disk_full, self._give_up)
+        self.last_tick: float | None = None  # the newest clock tick recorded (its progress is owed while paused)
         self._changed = asyncio.Event()
 
     async def setup(self) -> None:
@@ -153,8 +160,10 @@ class Recorder(Service):
         if admitted is None:
             return
         kind, t = admitted.parsed.kind, admitted.t
-        if kind == "clock" and self.files.split_before(t):  # a new file starts with a clock tick
-            self.checkpoints.save(RecorderCheckpoint(self.files.part))
+        if kind == "clock" and not self.disk.paused:  # a new file starts with a clock tick
+            # a split that fails ends the recording even under pause: the old file is half finalised
+            if not self.disk.attempt(self.files.writer, lambda: self._split(t), stopping=True) or self.files.closed:
+                return
         self.filter.check_gap(kind, t, self.files.path)
         try:
             self.files.writer.write(key, t, payload, time.time_ns())
@@ -165,14 +174,32 @@ class Recorder(Service):
         if kind == "tracks":
             self.last_tracks = max(self.last_tracks, t)
         elif kind == "clock":
-            self.files.tick(t)
-            self.report_progress(admitted.message.t)
+            self.last_tick = admitted.message.t
+            if not self.disk.paused and self.disk.attempt(self.files.writer, lambda: self.files.tick(t)):
+                self.report_progress(self.last_tick)  # none while paused: replay holds event time
         elif kind == "eos":
             self.eos = admitted.message.t
             self._changed.set()
         elif kind == "done":
             self.upstream.on_done(admitted.parsed.service, admitted.parsed.instance, admitted.message.t)
             self._changed.set()
+
+    def _split(self, t: float) -> None:
+        if self.files.split_before(t):
+            self.checkpoints.save(RecorderCheckpoint(self.files.part))
+
+    def _give_up(self, status: int) -> None:
+        self.exit_status = status
+        self.stop()
+
+    async def _retry_while_paused(self) -> None:
+        """While paused (--on-disk-full pause): write what is held, every RETRY s, until it goes."""
+        while self.disk.paused and not self.stopping.is_set():
+            try:
+                await asyncio.wait_for(self.stopping.wait(), RETRY)
+            except TimeoutError:
+                if self.disk.attempt(self.files.writer, self.files.writer.flush) and self.last_tick is not None:
+                    self.report_progress(self.last_tick)
 
     def stop(self) -> None:
         super().stop()
@@ -184,14 +211,20 @@ class Recorder(Service):
             if self.eos is not None and self.upstream.complete:
                 eos, self.eos = self.eos, None
                 if self.args.until == "eos":
-                    self._finalise()
-                    self.report_done(eos)
+                    while not self._finalise() and self.disk.paused:
+                        await self._retry_while_paused()
+                    if not self.disk.gave_up:
+                        self.report_done(eos)
                     return
-                self.files.writer.flush()
+                if not self.disk.attempt(self.files.writer, self.files.writer.flush):
+                    continue
                 self.report_done(eos)
                 self.upstream.done.clear()
                 log.info("recorder: end of stream at t=%g s recorded; recording on", eos)
             self._changed.clear()
+            if self.disk.paused:
+                await self._retry_while_paused()
+                continue
             try:
                 await asyncio.wait_for(self._changed.wait(), WAIT_LOG_INTERVAL)
             except TimeoutError:
@@ -200,9 +233,11 @@ class Recorder(Service):
                     log.info("recorder: end of stream seen; waiting for done from %s", owing)
                     last_said = time.monotonic()
 
-    def _finalise(self) -> None:
-        if self.files is not None:
-            self.files.finalise()
+    def _finalise(self) -> bool:
+        """Finalise the file (once stopping, whatever the disk allows); whether it is done."""
+        if self.files is None or self.files.closed:
+            return True
+        return self.disk.attempt(self.files.writer, self.files.finalise, stopping=self.stopping.is_set())
 
     async def teardown(self) -> None:
         if self.files is None and self.exit_status == 0:

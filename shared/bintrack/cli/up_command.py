@@ -36,6 +36,7 @@ from pathlib import Path
 import zenoh
 
 from bintrack.argtypes import add_alias, output_file, port_number, positive_float
+from bintrack.live.disk_full import EXIT_WRITE_FAILED, MODES as DISK_FULL_MODES
 from bintrack.live.parent_watch import PARENT_ENV
 from bintrack.live.presence import Presence
 from bintrack.live.session_options import DEFAULT_ENDPOINT, STACK_OPTION, STATE_DIR_OPTION, router_config
@@ -87,6 +88,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "follows --speed)")
     parser.add_argument("--loop", action="store_true", help="replay in a loop")
     parser.add_argument("--record", metavar="FILE.mcap", help="record everything into this file")
+    parser.add_argument("--on-disk-full", choices=DISK_FULL_MODES, default="stop",
+                        help="with --record, when the recording cannot be written (a full or failing disk): end the "
+                        "stack with the file finalised (stop), or hold event time until space is back (pause) "
+                        "(default: %(default)s)")
     parser.add_argument("--exit-at-end", action="store_true", help="stop once the replay's end has been processed")
     parser.add_argument("--listen", default=DEFAULT_ENDPOINT, metavar="ENDPOINT",
                         help="where the embedded router listens (default: %(default)s)")
@@ -323,7 +328,7 @@ def planned_stack(args: argparse.Namespace, net: str, view_port: int | None,
                           tracker_args=tracker_arguments(options), view_port=view_port,
                           view_bind=getattr(args, "view_bind", DEFAULT_BIND), state_dir=state_dir,
                           clock_period=args.clock_period, foxglove_port=getattr(args, "foxglove", None),
-                          bridge_args=bridge_args)
+                          bridge_args=bridge_args, on_disk_full=getattr(args, "on_disk_full", "stop"))
 
 
 def _map_socket(bind: str, port: int) -> socket.socket | None:
@@ -406,7 +411,7 @@ def run(args: argparse.Namespace) -> int:
                                              speed=args.speed, loop=args.loop, record=args.record,
                                              tracker_args=tracker_arguments(options), view_port=view_port,
                                              view_bind=view_bind, clock_period=args.clock_period,
-                                             foxglove_port=args.foxglove)
+                                             foxglove_port=args.foxglove, on_disk_full=args.on_disk_full)
         except ValueError as exc:
             if view_socket is not None:
                 view_socket.close()
@@ -492,6 +497,8 @@ def run(args: argparse.Namespace) -> int:
                     service.finished = True  # they end by themselves at the end of the stream
                 elif code == 2:
                     failed = f"{service.name} exited with status 2 (bad options or data)"
+                elif code == EXIT_WRITE_FAILED and service.command.name == "recorder":
+                    failed = f"{service.name} could not write its recording (its line above says what the file holds)"
                 elif service.quick_failures + 1 >= MAX_QUICK_FAILURES and now - service.started < STABLE_RUN:
                     failed = f"{service.name} {_status(code)}, {MAX_QUICK_FAILURES} times in a row; giving up"
                 else:

@@ -45,7 +45,7 @@ class RecordingFiles:
     def open(self) -> None:
         """Start the current part's file (raises OSError); the header and the deployment are on
         disk whatever happens next."""
-        self.writer = RecordingWriter(self.path, self.deployment, self.net, chunk_size=CHUNK_SIZE)
+        self.writer = RecordingWriter(self.path, self.deployment, self.net, chunk_size=CHUNK_SIZE, reserve=None)
         self.writer.flush()
 
     def copy_from(self, path: Path) -> tuple[int, float, float]:
