@@ -30,9 +30,7 @@ import zenoh
 
 from bintrack.argtypes import positive_float, size_bytes
 from bintrack.errors import CommandError
-from bintrack.bus_payloads import Clock
-from bintrack.keys import ParsedKey, parse_key
-from bintrack.message_codec import MessageError, decode
+from bintrack.keys import ParsedKey
 from bintrack.live.checkpoint import RecorderCheckpoint
 from bintrack.live.disk_full import MODES, RETRY, DiskFull
 from bintrack.live.end_of_stream import UpstreamDone
@@ -40,8 +38,7 @@ from bintrack.live.record_filter import RESULTS, RecordFilter
 from bintrack.live.recording_files import RecordingFiles
 from bintrack.live.service import Service, service_main
 from bintrack.live.session_options import add_bus_arguments
-from bintrack.live.track_history import fetch_tracks_after
-from bintrack.live.track_ledger import TrackGap
+from bintrack.live.track_ledger import TrackRefill
 from bintrack.live.foxglove_export import write_foxglove_copy
 
 log = logging.getLogger("bintrack")
@@ -99,8 +96,8 @@ class Recorder(Service):
         self.last_tracks = float("-inf")  # event time of the newest track set recorded
         self.disk = DiskFull(args.on_disk_full, self._give_up)
         self.last_tick: float | None = None  # the newest clock tick recorded (its progress is owed while paused)
-        self.gap = TrackGap()  # track sets the file may lack after a restart or a router outage
-        self._filling: asyncio.Task | None = None
+        # track sets the file may lack after a restart or a router outage
+        self.refill = TrackRefill(self.keys.tracks(), self.query, self._record_fetched, self.bad.report)
         self._changed = asyncio.Event()
 
     async def setup(self) -> None:
@@ -128,10 +125,9 @@ class Recorder(Service):
             kept, last_t, self.last_tracks = files.copy_from(aside, self._copied)
             self.filter.last_t = max(self.filter.last_t, last_t)
             aside.unlink()
-            self.gap.start(self.last_tracks)
-            log.info("recorder: restarted; kept the %d messages recorded before (up to t=%g s); the track sets "
-                     "published after t=%g s are fetched once their publisher has caught up", kept,
-                     self.filter.last_t, self.last_tracks)
+            log.info("recorder: restarted; kept the %d messages recorded before (up to t=%g s)", kept,
+                     self.filter.last_t)
+            self.refill.start(self.last_tracks)
             self.filter.restarted()
         self.follow_presence(self._on_presence)
         self.subscribe(self.keys.all(), self._on_sample)
@@ -141,44 +137,17 @@ class Recorder(Service):
         if record.kind in RESULTS:
             self.filter.kept(record.key, record.payload, record.t, record.kind)
 
-    async def _fill_gap(self, why: str) -> None:
-        """Record the track sets published after the gap's start that the file lacks (the
-        ``tracks?after=T`` queryable of the base station or merge): those a restart or a router
-        outage kept from us, asked for once their publisher has caught up (``why``)."""
-        after = self.gap.after
-        self.gap.close()
-        key = self.keys.tracks()
-        fetched = await asyncio.to_thread(fetch_tracks_after, self.query, key, after, self.bad.report)
-        recorded = 0
-        for tracks, payload in fetched:
-            if self.files.closed or self.filter.tracks.seen(key, tracks.t, payload):
-                continue
-            self.filter.kept(key, payload, tracks.t, "tracks")
-            self.files.writer.write(key, tracks.t, payload, time.time_ns())
-            self.last_tracks = max(self.last_tracks, tracks.t)
-            recorded += 1
-        log.info("recorder: %d track sets published after t=%g s fetched (%s); %d were recorded already",
-                 recorded, after, why, len(fetched) - recorded)
-
-    def _start_filling(self, why: str) -> None:
-        if self._filling is None or self._filling.done():
-            self._filling = asyncio.get_running_loop().create_task(self._fill_gap(why))
-
-    def _check_caught_up(self, key: str, payload: bytes) -> None:
-        """A progress report while track sets may be missing: fetch them once their publisher
-        says it has published every set before the first tick recorded again."""
-        try:
-            parsed, report = parse_key(key), decode(Clock, payload)
-        except (ValueError, MessageError):
-            return
-        if self.gap.caught_up(parsed.service, report):
-            self._start_filling(f"the {parsed.service} had released to t={report.released:g} s")
+    def _record_fetched(self, key: str, tracks, payload: bytes) -> bool:
+        if self.files.closed or self.filter.tracks.seen(key, tracks.t, payload):
+            return False
+        self.filter.kept(key, payload, tracks.t, "tracks")
+        self.files.writer.write(key, tracks.t, payload, time.time_ns())
+        self.last_tracks = max(self.last_tracks, tracks.t)
+        return True
 
     async def on_router_back(self) -> None:
         if not (self.files is None or self.files.closed):
-            self.gap.start(self.last_tracks)
-            log.info("recorder: the track sets published after t=%g s are fetched once their publisher has caught up",
-                     self.last_tracks)
+            self.refill.start(self.last_tracks)
 
     def _on_presence(self, parsed: ParsedKey, present: bool) -> None:
         self.upstream.on_presence(parsed, present)
@@ -189,8 +158,7 @@ class Recorder(Service):
         if self.files is None or self.files.closed:
             return
         key, payload = str(sample.key_expr), sample.payload.to_bytes()
-        if self.gap.until is not None and "/control/progress/" in key:
-            self._check_caught_up(key, payload)
+        self.refill.progress(key, payload)
         admitted = self.filter.admit(key, payload, None if sample.attachment is None else sample.attachment.to_bytes())
         if admitted is None:
             return
@@ -209,7 +177,7 @@ class Recorder(Service):
         if kind == "tracks":
             self.last_tracks = max(self.last_tracks, t)
         elif kind == "clock":
-            self.gap.tick(t)
+            self.refill.tick(t)
             self.last_tick = admitted.message.t
             if not self.disk.paused and self.disk.attempt(self.files.writer, lambda: self.files.tick(t)):
                 self.report_progress(self.last_tick)  # none while paused: replay holds event time
@@ -245,11 +213,7 @@ class Recorder(Service):
         last_said = time.monotonic()
         while not self.stopping.is_set():
             if self.eos is not None and self.upstream.complete:
-                if self.gap.open:  # every publisher is done: what it holds is whole
-                    self._start_filling("at the end of the stream, from publishers that are done")
-                if self._filling is not None:
-                    await self._filling
-                    self._filling = None
+                await self.refill.finish()
                 eos, self.eos = self.eos, None
                 if self.args.until == "eos":
                     while not self._finalise() and self.disk.paused:

@@ -10,14 +10,22 @@ reported done), and records each set once by (key, event time, payload).
 
 from __future__ import annotations
 
+import asyncio
 import hashlib
+import logging
 from collections import deque
+from collections.abc import Callable
 
-from bintrack.bus_payloads import Clock
+from bintrack.bus_payloads import Clock, TrackSet
+from bintrack.keys import parse_key
+from bintrack.live.track_history import fetch_tracks_after
+from bintrack.message_codec import MessageError, decode
 
 TRACK_KINDS = frozenset({"tracks", "region_tracks"})
 TRACK_SOURCES = ("basestation", "merge")  # the services whose ``tracks`` queryable a recorder asks
 LEDGER_SPAN = 4096  # track sets remembered per key (a duplicate comes within a checkpoint's span)
+
+log = logging.getLogger("bintrack")
 
 
 def _digest(payload: bytes) -> bytes:
@@ -76,3 +84,59 @@ class TrackGap:
 
     def close(self) -> None:
         self.after = self.until = None
+
+
+class TrackRefill:
+    """The recorder's part that fetches the track sets a restart or a router outage kept from
+    it: :meth:`start` opens a gap after the newest set recorded, :meth:`tick` and
+    :meth:`progress` follow the run, and the fetch (``query(selector, timeout)``, off the loop)
+    runs once the publisher caught up or, at the latest, in :meth:`finish`. ``record(key,
+    tracks, payload)`` writes a fetched set the file lacks (whether it did)."""
+
+    def __init__(self, key: str, query: Callable[[str, float], list[bytes]],
+                 record: Callable[[str, TrackSet, bytes], bool], report: Callable[[str, str], None]):
+        self.key = key
+        self.query = query
+        self.record = record
+        self.report = report
+        self.gap = TrackGap()
+        self._task: asyncio.Task | None = None
+
+    def start(self, after: float) -> None:
+        self.gap.start(after)
+        log.info("recorder: the track sets published after t=%g s are fetched once their publisher has caught up",
+                 after)
+
+    def tick(self, t: float) -> None:
+        self.gap.tick(t)
+
+    def progress(self, key: str, payload: bytes) -> None:
+        """A sample on ``key``: a publisher's progress report may say it has caught up."""
+        if self.gap.until is None or "/control/progress/" not in key:
+            return
+        try:
+            parsed, report = parse_key(key), decode(Clock, payload)
+        except (ValueError, MessageError):
+            return
+        if self.gap.caught_up(parsed.service, report):
+            self._fill_soon(f"the {parsed.service} had released to t={report.released:g} s")
+
+    async def finish(self) -> None:
+        """At the end of the stream, every publisher done: what they hold is whole."""
+        if self.gap.open:
+            self._fill_soon("at the end of the stream, from publishers that are done")
+        if self._task is not None:
+            await self._task
+            self._task = None
+
+    def _fill_soon(self, why: str) -> None:
+        if self._task is None or self._task.done():
+            self._task = asyncio.get_running_loop().create_task(self._fill(why))
+
+    async def _fill(self, why: str) -> None:
+        after = self.gap.after
+        self.gap.close()
+        fetched = await asyncio.to_thread(fetch_tracks_after, self.query, self.key, after, self.report)
+        recorded = sum(self.record(self.key, tracks, payload) for tracks, payload in fetched)
+        log.info("recorder: %d track sets published after t=%g s fetched (%s); %d more were recorded already",
+                 recorded, after, why, len(fetched) - recorded)
