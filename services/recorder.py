@@ -38,7 +38,7 @@ from bintrack.live.record_filter import RESULTS, RecordFilter
 from bintrack.live.recording_files import RecordingFiles
 from bintrack.live.service import Service, service_main
 from bintrack.live.session_options import add_bus_arguments
-from bintrack.live.track_ledger import TrackRefill
+from bintrack.live.track_ledger import TRACK_SOURCES, TrackRefill
 from bintrack.live.foxglove_export import write_foxglove_copy
 
 log = logging.getLogger("bintrack")
@@ -97,7 +97,8 @@ class Recorder(Service):
         self.disk = DiskFull(args.on_disk_full, self._give_up)
         self.last_tick: float | None = None  # the newest clock tick recorded (its progress is owed while paused)
         # track sets the file may lack after a restart or a router outage
-        self.refill = TrackRefill(self.keys.tracks(), self.query, self._record_fetched, self.bad.report)
+        self.refill = TrackRefill(self.keys.tracks(), self.query, self._record_fetched, self.bad.report,
+                                  lambda: any(self.presence.holders(s) for s in TRACK_SOURCES))
         self._changed = asyncio.Event()
 
     async def setup(self) -> None:

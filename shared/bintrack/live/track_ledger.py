@@ -91,11 +91,14 @@ class TrackRefill:
     it: :meth:`start` opens a gap after the newest set recorded, :meth:`tick` and
     :meth:`progress` follow the run, and the fetch (``query(selector, timeout)``, off the loop)
     runs once the publisher caught up or, at the latest, in :meth:`finish`. ``record(key,
-    tracks, payload)`` writes a fetched set the file lacks (whether it did)."""
+    tracks, payload)`` writes a fetched set the file lacks (whether it did); ``present()`` says
+    whether a publisher's token is there to answer."""
 
     def __init__(self, key: str, query: Callable[[str, float], list[bytes]],
-                 record: Callable[[str, TrackSet, bytes], bool], report: Callable[[str, str], None]):
+                 record: Callable[[str, TrackSet, bytes], bool], report: Callable[[str, str], None],
+                 present: Callable[[], bool]):
         self.key = key
+        self.present = present
         self.query = query
         self.record = record
         self.report = report
@@ -136,6 +139,10 @@ class TrackRefill:
     async def _fill(self, why: str) -> None:
         after = self.gap.after
         self.gap.close()
+        if not self.present():
+            log.warning("recorder: the track sets published after t=%g s may be missing from the file: no base "
+                        "station or merge is there to fetch them from", after)
+            return
         fetched = await asyncio.to_thread(fetch_tracks_after, self.query, self.key, after, self.report)
         recorded = sum(self.record(self.key, tracks, payload) for tracks, payload in fetched)
         log.info("recorder: %d track sets published after t=%g s fetched (%s); %d more were recorded already",
