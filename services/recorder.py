@@ -223,6 +223,7 @@ class Recorder(Service):
                         self.report_done(eos)
                     return
                 if not self.disk.attempt(self.files.writer, self.files.writer.flush):
+                    self.eos = eos  # reported done once it is on disk (paused), or never (gave up)
                     continue
                 self.report_done(eos)
                 self.upstream.done.clear()
