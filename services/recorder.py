@@ -138,8 +138,8 @@ class Recorder(Service):
         if record.kind in RESULTS:
             self.filter.kept(record.key, record.payload, record.t, record.kind)
 
-    def _record_fetched(self, key: str, tracks, payload: bytes) -> bool:
-        if self.files.closed or self.filter.tracks.seen(key, tracks.t, payload):
+    def _record_fetched(self, key: str, tracks, payload: bytes, n: int) -> bool:
+        if self.files.closed or self.filter.tracks.held(key, tracks.t, payload) >= n:
             return False
         self.filter.kept(key, payload, tracks.t, "tracks")
         self.files.writer.write(key, tracks.t, payload, time.time_ns())

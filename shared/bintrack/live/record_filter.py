@@ -52,6 +52,7 @@ class RecordFilter:
     def restarted(self) -> None:
         """The recorder restarted: what its predecessor recorded since its last flush is lost."""
         self.gap_from = self.last_t
+        self.tracks.returned()
 
     def check_gap(self, kind: str, t: float, path: str) -> None:
         """At the first tick after a restart, or the end of stream if no tick follows (a kill
@@ -70,6 +71,7 @@ class RecordFilter:
         entry = (parsed.service, parsed.instance)
         if present and entry in self.gone:
             self.dedupe_left = DEDUPE_AFTER_RETURN
+            self.tracks.returned()
         (self.gone.discard if present else self.gone.add)(entry)
 
     def kept(self, key: str, payload: bytes, t: float | None = None, kind: str | None = None) -> None:
@@ -104,7 +106,7 @@ class RecordFilter:
             return None
         t = event_time(message)
         t = self.last_t if t is None else t
-        if parsed.kind in TRACK_KINDS and self.tracks.seen(key, t, payload):
+        if parsed.kind in TRACK_KINDS and self.tracks.duplicate(key, t, payload):
             self.report(key, f"duplicate: the track set at t={t:g} s is recorded already")
             return None
         if parsed.kind in RESULTS and self.dedupe_left > 0:

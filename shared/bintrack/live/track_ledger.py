@@ -33,25 +33,47 @@ def _digest(payload: bytes) -> bytes:
 
 
 class TrackLedger:
-    """The newest LEDGER_SPAN track sets recorded on each key, by (event time, payload)."""
+    """How many times each of the newest LEDGER_SPAN track sets of each key is in the file, by
+    (event time, payload). Equal sets can be legitimate (a relay of two equal estimates), so a
+    set is a duplicate only after a publisher came back (:meth:`returned`): then the n-th
+    arrival of a set is one if the file holds it n times already (the publisher sends again
+    what it sent since its checkpoint)."""
 
     def __init__(self):
         self.order: dict[str, deque[tuple[float, bytes]]] = {}
-        self.members: dict[str, set[tuple[float, bytes]]] = {}
+        self.counts: dict[str, dict[tuple[float, bytes], int]] = {}
+        self.since_return: dict[str, dict[tuple[float, bytes], int]] | None = None
 
-    def seen(self, key: str, t: float, payload: bytes) -> bool:
-        return (t, _digest(payload)) in self.members.get(key, ())
+    def returned(self) -> None:
+        """A publisher came back (or this recorder restarted): what arrives may be sent again."""
+        self.since_return = {}
+
+    def duplicate(self, key: str, t: float, payload: bytes) -> bool:
+        """Whether this arrival of a set is one the file holds already (see the class)."""
+        if self.since_return is None:
+            return False
+        entry = (t, _digest(payload))
+        seen = self.since_return.setdefault(key, {})
+        seen[entry] = seen.get(entry, 0) + 1
+        return seen[entry] <= self.counts.get(key, {}).get(entry, 0)
+
+    def held(self, key: str, t: float, payload: bytes) -> int:
+        """How many times the file holds this set."""
+        return self.counts.get(key, {}).get((t, _digest(payload)), 0)
 
     def add(self, key: str, t: float, payload: bytes) -> None:
         entry = (t, _digest(payload))
-        members = self.members.setdefault(key, set())
-        if entry in members:
-            return
+        counts = self.counts.setdefault(key, {})
         order = self.order.setdefault(key, deque())
         if len(order) >= LEDGER_SPAN:
-            members.discard(order.popleft())
+            old = order.popleft()
+            counts[old] -= 1
+            if not counts[old]:
+                del counts[old]
+                if self.since_return is not None:
+                    self.since_return.get(key, {}).pop(old, None)
         order.append(entry)
-        members.add(entry)
+        counts[entry] = counts.get(entry, 0) + 1
 
 
 class TrackGap:
@@ -91,11 +113,12 @@ class TrackRefill:
     it: :meth:`start` opens a gap after the newest set recorded, :meth:`tick` and
     :meth:`progress` follow the run, and the fetch (``query(selector, timeout)``, off the loop)
     runs once the publisher caught up or, at the latest, in :meth:`finish`. ``record(key,
-    tracks, payload)`` writes a fetched set the file lacks (whether it did); ``present()`` says
+    tracks, payload, n)`` writes the ``n``-th fetched copy of a set if the file holds fewer
+    (whether it did); ``present()`` says
     whether a publisher's token is there to answer."""
 
     def __init__(self, key: str, query: Callable[[str, float], list[bytes]],
-                 record: Callable[[str, TrackSet, bytes], bool], report: Callable[[str, str], None],
+                 record: Callable[[str, TrackSet, bytes, int], bool], report: Callable[[str, str], None],
                  present: Callable[[], bool]):
         self.key = key
         self.present = present
@@ -144,6 +167,17 @@ class TrackRefill:
                         "station or merge is there to fetch them from", after)
             return
         fetched = await asyncio.to_thread(fetch_tracks_after, self.query, self.key, after, self.report)
-        recorded = sum(self.record(self.key, tracks, payload) for tracks, payload in fetched)
+        recorded = sum(self.record(self.key, tracks, payload, n) for tracks, payload, n in _numbered(fetched))
         log.info("recorder: %d track sets published after t=%g s fetched (%s); %d more were recorded already",
                  recorded, after, why, len(fetched) - recorded)
+
+
+def _numbered(fetched: list[tuple[TrackSet, bytes]]) -> list[tuple[TrackSet, bytes, int]]:
+    """Each fetched (set, payload) with how many equal ones came up to it (1 for the first)."""
+    counts: dict[tuple[float, bytes], int] = {}
+    out = []
+    for tracks, payload in fetched:
+        entry = (tracks.t, _digest(payload))
+        counts[entry] = counts.get(entry, 0) + 1
+        out.append((tracks, payload, counts[entry]))
+    return out
