@@ -49,14 +49,18 @@ def test_a_full_disk_ends_the_run_in_one_line_with_a_finalised_file(grid_slice, 
     lines = [line for line in up.lines if "recorder: cannot write" in line]
     assert len(lines) == 1 and "Traceback" not in up.log, up.log[-4000:]
     assert "up: recorder could not write its recording" in up.log
-    said = re.search(r"with (?:all |the )(\d+) messages", lines[0])
+    said = re.search(r"with (?:all |the )(\d+) messages|with (no) message", lines[0])
     assert said, lines[0]
     file = open_recording(recording)
     assert file.complete, lines[0]
     records = list(file.records())
-    assert len(records) == int(said.group(1)) > 0, lines[0]
+    assert len(records) == (0 if said.group(2) else int(said.group(1))), lines[0]
+    if speed == 0:  # the disk fills as the file is finalised: every message is in (mid-run, the
+        assert records, lines[0]  # first flush may already fill it on a loaded machine)
     # everything that reached the disk: the dataset's samples up to the last one in the file
     raw = sorted((r.t, r.key) for r in records if r.kind == "raw")
+    if not raw:
+        return
     events = sorted(e.t for e in open_dataset(grid_slice).events() if e.t <= raw[-1][0])
     assert [t for t, _ in raw] == events
 
