@@ -38,7 +38,7 @@ test-engine: $(STAMP) engine
 # still run: live equals offline for every tracker, kills and restarts of whole stacks, bad
 # input to each service, regions on a router mesh, the two-site compose stack, lossy links.
 FAST_SKIP := test_live.py test_faults.py test_bus_faults.py test_regions_live.py test_compose_multi.py \
-             test_lossy_link.py test_compose_engine.py
+             test_lossy_link.py test_compose_engine.py test_fault_pairs.py test_fault_peers.py test_fault_routers.py
 test-fast: $(STAMP)
 	$(PY) -m pytest -q -n auto --dist loadfile -m "not slow" $(addprefix --ignore=tests/,$(FAST_SKIP))
 

@@ -131,10 +131,14 @@ class Basestation(TransitionConsumer):
         self.warned = len(warnings)
 
     def checkpoint_extra(self):
-        return self.tracks.latest
+        # the track sets served too: a recorder restarted with this service fetches them
+        return self.tracks.latest, list(self.tracks.recent)
 
     def restore_extra(self, extra) -> None:
-        self.tracks.latest = extra
+        if isinstance(extra, tuple):
+            self.tracks.restore(*extra)
+        else:  # a checkpoint of an earlier version: the latest only
+            self.tracks.latest = extra
 
 
 def build_parser() -> argparse.ArgumentParser:

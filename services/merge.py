@@ -30,6 +30,7 @@ from bintrack.live.checkpoint import MergeCheckpoint
 from bintrack.live.service import Service, log, service_main
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.live.track_history import TrackHistory
+from bintrack.live.watermark import DEPARTED_HOLD
 from bintrack.bus_payloads import Clock, TrackSet
 from bintrack.message_codec import MessageError, decode
 from bintrack.regions import RegionMap
@@ -44,6 +45,7 @@ class Merge(Service):
         self.regions: RegionMap | None = None
         self.merge: RegionMerge | None = None
         self.tracks = TrackHistory(self.keys.tracks())
+        self.departed: dict[str, float | None] = {}  # region gone → the first tick (s) after it went
 
     async def setup(self) -> None:
         deployment = await self.wait_for_deployment()
@@ -80,11 +82,11 @@ class Merge(Service):
         self.tracks.restore(saved.latest, saved.history)
         return True
 
-    def fetch_region_tracks(self, after: float) -> list[tuple[str, TrackSet]]:
-        """(region, scan) of every scan later than ``after`` (s) that the regions' base stations
-        still hold (their ``tracks?after=T`` queryables); blocking, call off the loop."""
+    def fetch_region_tracks(self, after: float, regions=None) -> list[tuple[str, TrackSet]]:
+        """(region, scan) of every scan later than ``after`` (s) that the base stations of
+        ``regions`` (default: all) still hold (their ``tracks?after=T`` queryables); blocking."""
         fetched = []
-        for region in self.regions.names:
+        for region in regions or self.regions.names:
             key = self.keys.region_tracks(region)
             for payload in self.query(f"{key}?after={after!r}", timeout=2.0):
                 try:
@@ -92,6 +94,14 @@ class Merge(Service):
                 except MessageError as exc:
                     self.bad.report(key, exc.reason)
         return fetched
+
+    async def on_router_back(self) -> None:
+        if self.merge is not None:
+            fetched = await asyncio.to_thread(self.fetch_region_tracks, self.merge.emitted_up_to)
+            for region, tracks in fetched:
+                self.merge.add(region, tracks)
+            log.info("%s: %d region scans published during the outage fetched from the base stations", self.name,
+                     len(fetched))
 
     def region_of(self, sample: zenoh.Sample) -> str | None:
         key = str(sample.key_expr)
@@ -124,19 +134,38 @@ class Merge(Service):
         if region is None:
             return
         if present:
-            if region in self.merge.stale:
-                log.warning("%s: region %s's base station is back", self.name, region)
+            if region in self.merge.stale or region in self.departed:
+                self.departed.pop(region, None)
+                # what it published while its link was down: fetched before its progress can
+                # release the scans (a reply takes milliseconds: the loop waits on purpose)
+                fetched = self.fetch_region_tracks(self.merge.emitted_up_to, [region])
+                for _, tracks in fetched:
+                    self.merge.add(region, tracks)
+                log.warning("%s: region %s's base station is back; %d of its scans fetched", self.name, region,
+                            len(fetched))
             self.merge.back(region)
             return
         latest = self.tracks.latest
         shown = sum(1 for tr in (latest.tracks if latest else ()) if tr.region == region)
-        log.warning("%s: region %s's base station is gone; its %d tracks are marked stale", self.name, region, shown)
-        self.emit(self.merge.lost(region))
+        log.warning("%s: region %s's base station is gone; its %d tracks are marked stale unless it is back within "
+                    "%g s of event time", self.name, region, shown, DEPARTED_HOLD)
+        self.departed[region] = None
 
     def on_clock(self, sample: zenoh.Sample) -> None:
+        """A tick: a region gone for DEPARTED_HOLD s of event time past the first tick after it
+        went (plus what the replays may have in flight) is given up, its tracks marked stale. Until
+        then the merge waits for it: replay holds event time while a restarted one comes back."""
         tick = self.decode(Clock, sample)
-        if tick is not None:
-            self.report_progress(tick.t)
+        if tick is None:
+            return
+        lead = max(self.guard.steps.values(), default=0.0)
+        for region, since in list(self.departed.items()):
+            if since is None:
+                self.departed[region] = tick.t
+            elif tick.t >= since + DEPARTED_HOLD + lead:
+                del self.departed[region]
+                self.emit(self.merge.lost(region))
+        self.report_progress(tick.t)
 
     def emit(self, merged: list[TrackSet]) -> None:
         for tracks in merged:

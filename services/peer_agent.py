@@ -4,15 +4,20 @@
 transitions of the network, repairs ``seq`` gaps from the sensors' ``state`` queryables, feeds
 the tracker in event-time order (watermark = the least of the clock tick − ``--lateness`` and the
 sensor agents' progress, ties by sensor id)
-and publishes each hosted node's ``LocalEstimate`` on ``peer/<node>/estimate``.
+and publishes each hosted node's ``LocalEstimate`` on ``peer/<node>/estimate``; its queryable
+there answers ``?after=T`` with the recent estimates after T (for a restarted relay).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections import deque
+
+import zenoh
 
 from bintrack.argtypes import non_negative_float, positive_float
+from bintrack.live.checkpoint import CHECKPOINT_SPAN
 from bintrack.live.service import service_main
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.bus_payloads import LocalEstimate
@@ -21,10 +26,34 @@ from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_o
 from bintrack.trackers import PEER_TRACKERS, make_tracker
 from bintrack.live.transition_intake import TransitionConsumer
 from bintrack.regions import RegionMap
+from bintrack.message_codec import encode
+
+# s of event time of estimates kept for a restarted relay: its checkpoint is up to CHECKPOINT_SPAN
+# old, and it released up to its watermark behind that
+ESTIMATE_SPAN = 4 * CHECKPOINT_SPAN
+
+
+class EstimateHistory:
+    """The estimates published in the last ESTIMATE_SPAN s of event time, oldest first."""
+
+    def __init__(self):
+        self.recent: deque[LocalEstimate] = deque()
+
+    def add(self, estimate: LocalEstimate) -> None:
+        self.recent.append(estimate)
+        while self.recent and self.recent[0].t < estimate.t - ESTIMATE_SPAN:
+            self.recent.popleft()
+
+    def after(self, t: float) -> list[LocalEstimate]:
+        return [e for e in self.recent if e.t > t]
 
 
 class PeerAgent(TransitionConsumer):
     name = "peer_agent"
+
+    def __init__(self, args):
+        super().__init__(args)
+        self.estimates = EstimateHistory()  # kept in the checkpoint: a relay restarted with us asks for them
 
     async def setup(self) -> None:
         deployment = await self.wait_for_deployment()
@@ -46,11 +75,32 @@ class PeerAgent(TransitionConsumer):
         except ValueError as exc:
             raise CommandError(str(exc)) from None
         self.start_intake(deployment, tracker, network=network)
+        self.serve(self.keys.estimate(), self.answer_estimates)
 
     def emit(self, outputs) -> None:
         for estimate in outputs:
             if isinstance(estimate, LocalEstimate) and (self.hosted is None or estimate.node in self.hosted):
+                self.estimates.add(estimate)
                 self.publish(self.keys.estimate(estimate.node), estimate)
+
+    def answer_estimates(self, query: zenoh.Query) -> None:
+        """``peer/*/estimate?after=T``: each estimate of the last ESTIMATE_SPAN s published after T
+        (s), in order: what a restarted relay asks for."""
+        try:
+            after = float(query.parameters.get("after", "-inf"))
+        except ValueError:
+            query.reply_err(b"after must be a number of seconds")
+            return
+        for estimate in self.estimates.after(after):
+            key = self.keys.estimate(estimate.node)
+            if zenoh.KeyExpr(key).intersects(query.key_expr):
+                query.reply(key, encode(estimate))
+
+    def checkpoint_extra(self):
+        return list(self.estimates.recent)
+
+    def restore_extra(self, extra) -> None:
+        self.estimates.recent.extend(extra or ())
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -32,12 +32,13 @@ from bintrack.argtypes import positive_float, size_bytes
 from bintrack.errors import CommandError
 from bintrack.keys import ParsedKey
 from bintrack.live.checkpoint import RecorderCheckpoint
+from bintrack.live.disk_full import MODES, RETRY, DiskFull
 from bintrack.live.end_of_stream import UpstreamDone
-from bintrack.live.record_filter import RecordFilter
+from bintrack.live.record_filter import RESULTS, RecordFilter
 from bintrack.live.recording_files import RecordingFiles
 from bintrack.live.service import Service, service_main
 from bintrack.live.session_options import add_bus_arguments
-from bintrack.live.track_history import fetch_tracks_after
+from bintrack.live.track_ledger import TRACK_SOURCES, TrackRefill
 from bintrack.live.foxglove_export import write_foxglove_copy
 
 log = logging.getLogger("bintrack")
@@ -60,6 +61,10 @@ def add_arguments(parser: argparse.ArgumentParser, until_default: str = "eos", n
                         help="as each file is finalised, also write FILE.foxglove.mcap beside it: every message as "
                         "JSON and the scene as foxglove.SceneUpdate, the schemas `up --foxglove` serves, which "
                         "Foxglove opens directly")
+    parser.add_argument("--on-disk-full", choices=MODES, default="stop",
+                        help="when the file cannot be written (a full or failing disk): finalise it with what was "
+                        "written and exit with status 3 (stop), or hold event time until it can be written again "
+                        "(pause) (default: %(default)s)")
     parser.add_argument("--id", help="instance id (default: host-pid)")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     add_bus_arguments(parser, net_default=net_default)
@@ -89,6 +94,11 @@ class Recorder(Service):
         self.upstream = UpstreamDone(UPSTREAM)
         self.eos: float | None = None
         self.last_tracks = float("-inf")  # event time of the newest track set recorded
+        self.disk = DiskFull(args.on_disk_full, self._give_up)
+        self.last_tick: float | None = None  # the newest clock tick recorded (its progress is owed while paused)
+        # track sets the file may lack after a restart or a router outage
+        self.refill = TrackRefill(self.keys.tracks(), self.query, self._record_fetched, self.bad.report,
+                                  lambda: any(self.presence.holders(s) for s in TRACK_SOURCES))
         self._changed = asyncio.Event()
 
     async def setup(self) -> None:
@@ -113,32 +123,32 @@ class Recorder(Service):
             return
         self.checkpoints.save(RecorderCheckpoint(files.part))
         if restarted:
-            kept, last_t, self.last_tracks = files.copy_from(aside)
+            kept, last_t, self.last_tracks = files.copy_from(aside, self._copied)
             self.filter.last_t = max(self.filter.last_t, last_t)
             aside.unlink()
-            fetched = await asyncio.to_thread(self._fetch_tracks)
-            log.info("recorder: restarted; kept the %d messages recorded before (up to t=%g s), fetched %d "
-                     "track sets published since from the base station", kept, self.filter.last_t, fetched)
+            log.info("recorder: restarted; kept the %d messages recorded before (up to t=%g s)", kept,
+                     self.filter.last_t)
+            self.refill.start(self.last_tracks)
             self.filter.restarted()
         self.follow_presence(self._on_presence)
         self.subscribe(self.keys.all(), self._on_sample)
         log.info("recorder: recording %s into %s", self.keys.all(), files.path)
 
-    def _fetch_tracks(self) -> int:
-        """Record the track sets the base station published after the last one recorded (its
-        ``tracks?after=T`` queryable): those a restart or a router outage kept from us."""
-        key = self.keys.tracks()
-        fetched = fetch_tracks_after(self.query, key, self.last_tracks, self.bad.report)
-        for tracks, payload in fetched:
-            self.filter.kept(key, payload)
-            self.files.writer.write(key, tracks.t, payload, time.time_ns())
-            self.last_tracks = tracks.t
-        return len(fetched)
+    def _copied(self, record) -> None:
+        if record.kind in RESULTS:
+            self.filter.kept(record.key, record.payload, record.t, record.kind)
+
+    def _record_fetched(self, key: str, tracks, payload: bytes, n: int) -> bool:
+        if self.files.closed or self.filter.tracks.held(key, tracks.t, payload) >= n:
+            return False
+        self.filter.kept(key, payload, tracks.t, "tracks")
+        self.files.writer.write(key, tracks.t, payload, time.time_ns())
+        self.last_tracks = max(self.last_tracks, tracks.t)
+        return True
 
     async def on_router_back(self) -> None:
         if not (self.files is None or self.files.closed):
-            fetched = await asyncio.to_thread(self._fetch_tracks)
-            log.info("recorder: %d track sets published during the outage fetched from the base station", fetched)
+            self.refill.start(self.last_tracks)
 
     def _on_presence(self, parsed: ParsedKey, present: bool) -> None:
         self.upstream.on_presence(parsed, present)
@@ -149,12 +159,15 @@ class Recorder(Service):
         if self.files is None or self.files.closed:
             return
         key, payload = str(sample.key_expr), sample.payload.to_bytes()
+        self.refill.progress(key, payload)
         admitted = self.filter.admit(key, payload, None if sample.attachment is None else sample.attachment.to_bytes())
         if admitted is None:
             return
         kind, t = admitted.parsed.kind, admitted.t
-        if kind == "clock" and self.files.split_before(t):  # a new file starts with a clock tick
-            self.checkpoints.save(RecorderCheckpoint(self.files.part))
+        if kind == "clock" and not self.disk.paused:  # a new file starts with a clock tick
+            # a split that fails ends the recording even under pause: the old file is half finalised
+            if not self.disk.attempt(self.files.writer, lambda: self._split(t), stopping=True) or self.files.closed:
+                return
         self.filter.check_gap(kind, t, self.files.path)
         try:
             self.files.writer.write(key, t, payload, time.time_ns())
@@ -165,14 +178,33 @@ class Recorder(Service):
         if kind == "tracks":
             self.last_tracks = max(self.last_tracks, t)
         elif kind == "clock":
-            self.files.tick(t)
-            self.report_progress(admitted.message.t)
+            self.refill.tick(t)
+            self.last_tick = admitted.message.t
+            if not self.disk.paused and self.disk.attempt(self.files.writer, lambda: self.files.tick(t)):
+                self.report_progress(self.last_tick)  # none while paused: replay holds event time
         elif kind == "eos":
             self.eos = admitted.message.t
             self._changed.set()
         elif kind == "done":
             self.upstream.on_done(admitted.parsed.service, admitted.parsed.instance, admitted.message.t)
             self._changed.set()
+
+    def _split(self, t: float) -> None:
+        if self.files.split_before(t):
+            self.checkpoints.save(RecorderCheckpoint(self.files.part))
+
+    def _give_up(self, status: int) -> None:
+        self.exit_status = status
+        self.stop()
+
+    async def _retry_while_paused(self) -> None:
+        """While paused (--on-disk-full pause): write what is held, every RETRY s, until it goes."""
+        while self.disk.paused and not self.stopping.is_set():
+            try:
+                await asyncio.wait_for(self.stopping.wait(), RETRY)
+            except TimeoutError:
+                if self.disk.attempt(self.files.writer, self.files.writer.flush) and self.last_tick is not None:
+                    self.report_progress(self.last_tick)
 
     def stop(self) -> None:
         super().stop()
@@ -182,16 +214,24 @@ class Recorder(Service):
         last_said = time.monotonic()
         while not self.stopping.is_set():
             if self.eos is not None and self.upstream.complete:
+                await self.refill.finish()
                 eos, self.eos = self.eos, None
                 if self.args.until == "eos":
-                    self._finalise()
-                    self.report_done(eos)
+                    while not self._finalise() and self.disk.paused:
+                        await self._retry_while_paused()
+                    if not self.disk.gave_up:
+                        self.report_done(eos)
                     return
-                self.files.writer.flush()
+                if not self.disk.attempt(self.files.writer, self.files.writer.flush):
+                    self.eos = eos  # reported done once it is on disk (paused), or never (gave up)
+                    continue
                 self.report_done(eos)
                 self.upstream.done.clear()
                 log.info("recorder: end of stream at t=%g s recorded; recording on", eos)
             self._changed.clear()
+            if self.disk.paused:
+                await self._retry_while_paused()
+                continue
             try:
                 await asyncio.wait_for(self._changed.wait(), WAIT_LOG_INTERVAL)
             except TimeoutError:
@@ -200,9 +240,11 @@ class Recorder(Service):
                     log.info("recorder: end of stream seen; waiting for done from %s", owing)
                     last_said = time.monotonic()
 
-    def _finalise(self) -> None:
-        if self.files is not None:
-            self.files.finalise()
+    def _finalise(self) -> bool:
+        """Finalise the file (once stopping, whatever the disk allows); whether it is done."""
+        if self.files is None or self.files.closed:
+            return True
+        return self.disk.attempt(self.files.writer, self.files.finalise, stopping=self.stopping.is_set())
 
     async def teardown(self) -> None:
         if self.files is None and self.exit_status == 0:

@@ -41,7 +41,6 @@ import yaml
 
 from bintrack.cli import main as cli
 from bintrack.formats import read_tracks
-from bintrack.trackers import runs_on_peers
 from support import HUNG, REPO
 
 if not os.environ.get("BINTRACK_ENGINE_TESTS"):
@@ -463,19 +462,10 @@ def recordings_equal_offline(project: Project, offline, first, second) -> None:
     foreign = [row for row in extra if row not in ours]
     assert not foreign, f"{len(foreign)} rows `bintrack track` does not give: {foreign[:3]}"
     tracker = tracker_of(project)
-    assert not missing or runs_on_peers(tracker), f"{len(missing)} rows of `bintrack track` missing: {missing[:3]}"
-    # Known defects, reported rather than hidden (the test passes once they are fixed):
-    known = []
-    if missing:
-        known.append(f"{len(missing)} rows missing (t={missing[0].t:.3f}..{missing[-1].t:.3f} s): the base station of "
-                     f"a tracker on the peers ({tracker}) relays their estimates, keeps no checkpoint and fetches "
-                     "none back, so what it held when killed is lost without a word")
-    if extra:
-        known.append(f"{len(extra)} rows recorded twice (t={extra[0].t:.3f}..{extra[-1].t:.3f} s): after `down` and "
-                     "`up` the base station sends again what it sent after its checkpoint, and the restarted "
-                     "recorder records it again")
-    if known:
-        pytest.xfail("; ".join(known))
+    # the relay of a tracker on the peers resumes from its checkpoint and fetches the peers'
+    # estimates; the recorder records each track set once, across `down` and `up` too
+    assert not missing, f"{len(missing)} rows of `bintrack track` missing ({tracker}): {missing[:3]}"
+    assert not extra, f"{len(extra)} rows recorded twice: {extra[:3]}"
 
 
 @pytest.mark.slow

@@ -14,7 +14,8 @@ resumes from its checkpoint in a state folder (``--state-dir`` of the services) 
 what the others hold. A service that exits with status 2 (bad options or data) or fails
 :data:`MAX_QUICK_FAILURES` times in a row stops the stack. The services run in one process
 group and end themselves when ``up`` dies (parent-death check in :mod:`bintrack.live.parent_watch`), so no
-orphan is left. ``up`` refuses to run next to another stack of the same network on its router.
+orphan is left. ``up`` refuses to run next to another stack of the same network on its router;
+a token of another instance that joins later is logged and ignored, by ``up`` and its services.
 """
 
 from __future__ import annotations
@@ -35,9 +36,10 @@ from pathlib import Path
 import zenoh
 
 from bintrack.argtypes import add_alias, output_file, port_number, positive_float
+from bintrack.live.disk_full import EXIT_WRITE_FAILED, MODES as DISK_FULL_MODES
 from bintrack.live.parent_watch import PARENT_ENV
 from bintrack.live.presence import Presence
-from bintrack.live.session_options import DEFAULT_ENDPOINT, STATE_DIR_OPTION, router_config
+from bintrack.live.session_options import DEFAULT_ENDPOINT, STACK_OPTION, STATE_DIR_OPTION, router_config
 from bintrack.errors import CommandError
 from bintrack.formats import DEPLOYMENT_FILE, open_dataset, write_deployment
 from bintrack.keys import Keys, ParsedKey, parse_key
@@ -45,7 +47,7 @@ from bintrack.bus_payloads import Clock
 from bintrack.message_codec import MessageError, decode
 from bintrack.live.stack import ServiceCommand, is_broker, region_stack_commands, stack_commands
 from bintrack.regions import grid_areas, grid_shape
-from bintrack.live.secure_profile import exposed_keys, secure_up
+from bintrack.live.secure_profile import exposed_keys, pin_run_tokens, secure_up
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_arguments, tracker_options
 from bintrack.trackers import TRACKER_NAMES, check_options as make_tracker_check, sensor_mismatch
 from bintrack.view.map_access import TOKEN_ENV, check_bind, token_from
@@ -60,6 +62,9 @@ FOXGLOVE_PORT = 8765  # Foxglove's default WebSocket port
 FOREIGN_CHECK = 1.0  # s to wait for liveliness replies of another stack before starting
 # the roles that make a stack: another instance of one of them on the network is another stack
 # (observers — a recorder, a map, the Foxglove bridge started by hand — may join)
+OPEN_BUS = ("up: without --secure the bus on {listen} is open to any client that reaches it: tokens of other "
+            "instances are ignored, but a client that copies the id of one of this run's services ({stack}-…, "
+            "shown on the bus) into a message's attachment can still end the run or move its clock")
 STACK_ROLES = frozenset({"replay", "sensor_agent", "peer_agent", "basestation", "estimate_relay", "merge"})
 
 
@@ -83,6 +88,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "follows --speed)")
     parser.add_argument("--loop", action="store_true", help="replay in a loop")
     parser.add_argument("--record", metavar="FILE.mcap", help="record everything into this file")
+    parser.add_argument("--on-disk-full", choices=DISK_FULL_MODES, default="stop",
+                        help="with --record, when the recording cannot be written (a full or failing disk): end the "
+                        "stack with the file finalised (stop), or hold event time until space is back (pause) "
+                        "(default: %(default)s)")
     parser.add_argument("--exit-at-end", action="store_true", help="stop once the replay's end has been processed")
     parser.add_argument("--listen", default=DEFAULT_ENDPOINT, metavar="ENDPOINT",
                         help="where the embedded router listens (default: %(default)s)")
@@ -134,12 +143,13 @@ class Monitor:
     counts: Counter = field(default_factory=Counter)
     event_time: float | None = None
     done: set[str] = field(default_factory=set)
-    foreign: set[str] = field(default_factory=set)  # alive/<service>/<id> keys of another stack
+    foreign: set[str] = field(default_factory=set)  # alive/<service>/<id> of other instances, not yet said
+    said: set[str] = field(default_factory=set)  # those said already
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def on_presence(self, parsed: ParsedKey, present: bool) -> None:
         """A service's token came or went (a Presence listener, on a Zenoh thread)."""
-        if parsed.kind == "alive" and present and parsed.instance not in self.ours and parsed.service in STACK_ROLES:
+        if parsed.kind == "alive" and present and parsed.instance not in self.ours:
             with self.lock:
                 self.foreign.add(f"{parsed.service}/{parsed.instance}")
 
@@ -163,8 +173,11 @@ class Monitor:
             return Counter(self.counts), self.event_time, set(self.done)
 
     def foreign_services(self) -> list[str]:
+        """The tokens of other instances that joined since the last call (each once)."""
         with self.lock:
-            return sorted(self.foreign)
+            new, self.foreign = sorted(self.foreign - self.said), set()
+            self.said.update(new)
+            return new
 
 
 class Stopped(Exception):
@@ -315,7 +328,7 @@ def planned_stack(args: argparse.Namespace, net: str, view_port: int | None,
                           tracker_args=tracker_arguments(options), view_port=view_port,
                           view_bind=getattr(args, "view_bind", DEFAULT_BIND), state_dir=state_dir,
                           clock_period=args.clock_period, foxglove_port=getattr(args, "foxglove", None),
-                          bridge_args=bridge_args)
+                          bridge_args=bridge_args, on_disk_full=getattr(args, "on_disk_full", "stop"))
 
 
 def _map_socket(bind: str, port: int) -> socket.socket | None:
@@ -398,7 +411,7 @@ def run(args: argparse.Namespace) -> int:
                                              speed=args.speed, loop=args.loop, record=args.record,
                                              tracker_args=tracker_arguments(options), view_port=view_port,
                                              view_bind=view_bind, clock_period=args.clock_period,
-                                             foxglove_port=args.foxglove)
+                                             foxglove_port=args.foxglove, on_disk_full=args.on_disk_full)
         except ValueError as exc:
             if view_socket is not None:
                 view_socket.close()
@@ -417,6 +430,9 @@ def run(args: argparse.Namespace) -> int:
             raise
     else:
         config = router_config([args.listen])
+    stack_id = f"up{os.getpid()}"
+    # under --secure each role may declare the tokens of its own instances in this run only
+    pinned = pin_run_tokens(config, commands, net, stack_id) if args.secure else ()
     try:
         router = zenoh.open(config)
     except zenoh.ZError as exc:
@@ -426,10 +442,9 @@ def run(args: argparse.Namespace) -> int:
                            "is another one running? choose another with --listen") from None
     keys = Keys(net)
     state_dir = tempfile.TemporaryDirectory(prefix="bintrack-up-")  # the services' checkpoints
-    stack_id = f"up{os.getpid()}"
-    supervised = {c.key: Supervised(c, c.argv(sys.executable) if c.name == "router" else
+    supervised = {c.key: Supervised(c, [*c.argv(sys.executable), *pinned] if c.name == "router" else
                                     [*c.argv(sys.executable), "--id", f"{stack_id}-{c.key}", STATE_DIR_OPTION,
-                                     state_dir.name, *(("--socket-fd", str(view_socket.fileno()))
+                                     state_dir.name, STACK_OPTION, stack_id, *(("--socket-fd", str(view_socket.fileno()))
                                                        if c.name == "view" else ())])
                   for c in commands}
     passed = {"view": (view_socket.fileno(),)} if view_socket is not None else {}
@@ -460,6 +475,8 @@ def run(args: argparse.Namespace) -> int:
             pid = service.start(env, group, passed.get(service.command.name, ()))
             group = pid if group is None else group
         print(f"up: router on {args.listen}, network {net}, services: {', '.join(supervised)}", file=sys.stderr)
+        if not args.secure:
+            print(OPEN_BUS.format(listen=args.listen, stack=stack_id), file=sys.stderr)
         before, t_before = Counter(), time.monotonic()
         while True:
             time.sleep(0.1)
@@ -480,15 +497,17 @@ def run(args: argparse.Namespace) -> int:
                     service.finished = True  # they end by themselves at the end of the stream
                 elif code == 2:
                     failed = f"{service.name} exited with status 2 (bad options or data)"
+                elif code == EXIT_WRITE_FAILED and service.command.name == "recorder":
+                    failed = f"{service.name} could not write its recording (its line above says what the file holds)"
                 elif service.quick_failures + 1 >= MAX_QUICK_FAILURES and now - service.started < STABLE_RUN:
                     failed = f"{service.name} {_status(code)}, {MAX_QUICK_FAILURES} times in a row; giving up"
                 else:
                     backoff = service.died(code, now)
                     print(f"up: {service.name} {_status(code)} after {now - service.started:.1f} s; "
                           f"restarting it in {backoff:g} s", file=sys.stderr)
-            foreign = monitor.foreign_services()
-            if foreign:
-                failed = f"another stack of network {net} joined the bus: {', '.join(foreign)}"
+            for token in monitor.foreign_services():
+                print(f"up: ignoring {token}, which joined the bus: not one of this run's services (they ignore it "
+                      "too)", file=sys.stderr)
             if failed:
                 break
             counts, event_time, done = monitor.snapshot()

@@ -133,6 +133,19 @@ class BridgeCheckpoint:
 
 
 @dataclass
+class RelayCheckpoint:
+    """The estimate relay's, taken at a clock tick: the estimates not released yet (a
+    ReorderBuffer, which knows how far it released), the payloads seen per node, and the track
+    sets it served (the latest and the recent ones)."""
+
+    tick: float
+    estimates: Any
+    recent: dict[str, list[bytes]]
+    latest: TrackSet | None
+    history: list[TrackSet]
+
+
+@dataclass
 class RecorderCheckpoint:
     """Which split part the recorder was writing."""
 

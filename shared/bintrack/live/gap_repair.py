@@ -104,16 +104,20 @@ class GapRepair:
             return self.state.sources.seen(transition)
         return self.state.sequence.classify(transition) == "duplicate"
 
-    def fetch_since_received(self) -> int:
+    def fetch_since_received(self) -> str:
         """Fetch from the sensors' state every transition sent after the last one received in
         order: of each sensor (by ``seq``, from the lowest last seq of all sensors on; the
-        duplicates are left out) and of each known sensor agent; how many were taken."""
+        duplicates are left out) and of each known sensor agent; says how many were taken, or
+        that no sensor agent answered (then its progress reports ask again)."""
         before = len(self.state.fetched)
         since = min((self.state.sequence.last.get(sensor, 0) for sensor in self.sensors), default=0)
-        self.fetch_missed(f"{self.keys.state()}?since={since}")
+        answered = self.fetch_missed(f"{self.keys.state()}?since={since}")
         for source, received in self.state.sources.contiguous().items():
             self.fetch_missed(f"{self.keys.state()}?source={source};after={received}")
-        return len(self.state.fetched) - before
+        if not answered:
+            return ("no sensor agent answered yet (one restarting too?): the transitions sent since are fetched "
+                    "as each reports its progress")
+        return f"{len(self.state.fetched) - before} transitions sent since fetched from the sensors' state"
 
     def fetch_missed(self, selector: str, before: Transition | None = None, upto: int | None = None) -> bool:
         """Take the ``missed`` transitions of every state reply to ``selector``, oldest first:

@@ -5,16 +5,21 @@ Every service instance holds a token ``alive/<service>/<id>`` (a region's base s
 tokens declared before it came), and hands each change to the parts that care: the control
 guard, the upstream watermark, end of stream, replay's flow control, the recorder, the merge.
 A listener added later is told at once of the tokens present, as a subscriber with history
-would be.
+would be. An instance of a run started by ``up`` (``--stack ID``) counts only the tokens of the
+run's own instances (ids ``ID-…``): any other is logged once and ignored, so that a token
+declared by another client on an open bus can neither stall a watermark nor stop the run.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 
 import zenoh
 
 from bintrack.keys import Keys, ParsedKey, parse_key
+
+log = logging.getLogger("bintrack")
 
 PRESENCE_KINDS = frozenset({"alive", "region_alive"})
 
@@ -26,8 +31,11 @@ class Presence:
     """The liveliness tokens of one network, followed by one subscriber (declared by
     :meth:`declare`), and the listeners to tell of each change, in the order they were added."""
 
-    def __init__(self, keys: Keys):
+    def __init__(self, keys: Keys, stack: str | None = None, who: str = "bintrack"):
         self.keys = keys
+        self.stack = stack
+        self.who = who
+        self.ignored: set[str] = set()  # token keys of other instances, logged once
         self.present: dict[str, ParsedKey] = {}  # token key → its parse, while declared
         self._listeners: list[Listener] = []
         self._subscriber = None
@@ -52,7 +60,7 @@ class Presence:
             parsed = parse_key(key)
         except ValueError:
             return
-        if parsed.kind not in PRESENCE_KINDS:
+        if parsed.kind not in PRESENCE_KINDS or not self.of_the_run(key, parsed):
             return
         present = sample.kind == zenoh.SampleKind.PUT
         if present:
@@ -61,6 +69,16 @@ class Presence:
             self.present.pop(key, None)
         for listener in self._listeners:
             listener(parsed, present)
+
+    def of_the_run(self, key: str, parsed: ParsedKey) -> bool:
+        """Whether the token ``key`` is one of this run's instances (logs one that is not, once)."""
+        if self.stack is None or parsed.kind != "alive" or parsed.instance.startswith(f"{self.stack}-"):
+            return True
+        if key not in self.ignored:
+            self.ignored.add(key)
+            log.warning("%s: ignoring the liveliness token %s: not one of run %s's instances", self.who, key,
+                        self.stack)
+        return False
 
     def holders(self, service: str) -> list[str]:
         """The instances of ``service`` whose tokens are present."""

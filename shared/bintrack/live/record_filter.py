@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 from bintrack.keys import ParsedKey, parse_key
 from bintrack.live.recording import KIND_TYPES, event_time
+from bintrack.live.track_ledger import TRACK_KINDS, TrackLedger
 from bintrack.message_codec import MessageError, decode_view, is_resent
 
 # outputs a restarted service may send again, recorded once (transitions are not here: they
@@ -46,10 +47,12 @@ class RecordFilter:
         self.gone: set[tuple[str, str]] = set()  # services whose tokens went
         self.last_t = 0.0  # event time of the newest message recorded
         self.gap_from: float | None = None  # after a restart: event time up to which the file was kept
+        self.tracks = TrackLedger()  # the track sets in the file: each recorded once
 
     def restarted(self) -> None:
         """The recorder restarted: what its predecessor recorded since its last flush is lost."""
         self.gap_from = self.last_t
+        self.tracks.returned()
 
     def check_gap(self, kind: str, t: float, path: str) -> None:
         """At the first tick after a restart, or the end of stream if no tick follows (a kill
@@ -68,10 +71,14 @@ class RecordFilter:
         entry = (parsed.service, parsed.instance)
         if present and entry in self.gone:
             self.dedupe_left = DEDUPE_AFTER_RETURN
+            self.tracks.returned()
         (self.gone.discard if present else self.gone.add)(entry)
 
-    def kept(self, key: str, payload: bytes) -> None:
-        """``payload`` on ``key`` is in the file (recorded, or fetched after a loss)."""
+    def kept(self, key: str, payload: bytes, t: float | None = None, kind: str | None = None) -> None:
+        """``payload`` on ``key`` (of key kind ``kind``, event time ``t`` s) is in the file
+        (recorded, copied or fetched after a loss)."""
+        if kind in TRACK_KINDS:
+            self.tracks.add(key, t, payload)
         self.recent.setdefault(key, deque(maxlen=RECENT_PER_KEY)).append(payload)
 
     def admit(self, key: str, payload: bytes, attachment: bytes | None) -> Admitted | None:
@@ -97,6 +104,11 @@ class RecordFilter:
         except MessageError as exc:
             self.report(key, exc.reason)
             return None
+        t = event_time(message)
+        t = self.last_t if t is None else t
+        if parsed.kind in TRACK_KINDS and self.tracks.duplicate(key, t, payload):
+            self.report(key, f"duplicate: the track set at t={t:g} s is recorded already")
+            return None
         if parsed.kind in RESULTS and self.dedupe_left > 0:
             # an upstream service came back (restart, router): what it sends again is recorded
             # once. Only then: equal messages can be legitimate (a relay of equal estimates).
@@ -104,8 +116,6 @@ class RecordFilter:
             if payload in self.recent.get(key, ()):
                 self.report(key, "duplicate: the same message again, after a restart")
                 return None
-        t = event_time(message)
-        t = self.last_t if t is None else t
         if parsed.kind == "raw":
             if attachment is not None and t <= self.raw_last.get(key, -math.inf) and is_resent(attachment):
                 self.resent_dropped += 1  # a restarted replay sent it again; it is here already
@@ -120,5 +130,5 @@ class RecordFilter:
     def recorded(self, admitted: Admitted, key: str, payload: bytes) -> None:
         """``admitted`` was written."""
         if admitted.parsed.kind in RESULTS:
-            self.kept(key, payload)
+            self.kept(key, payload, admitted.t, admitted.parsed.kind)
         self.last_t = max(self.last_t, admitted.t)

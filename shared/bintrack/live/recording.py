@@ -42,6 +42,7 @@ from mcap.writer import IndexType, Writer
 from bintrack import __version__
 from bintrack.formats import FormatError, deployment_text, open_input, parse_deployment
 from bintrack.keys import Keys, parse_key
+from bintrack.live.spooled_file import SpooledFile
 from bintrack.bus_payloads import (
     Clock, EndOfStream, LineObjectEstimate, LocalEstimate, PositionReports, RawSample, SensorState, TrackSet,
     Transition, TruthSample, VelocityEstimate,
@@ -138,13 +139,17 @@ class RecordingWriter:
 
     ``write`` takes payloads already validated by the caller. ``flush`` pushes finished chunks
     to the operating system; ``close`` finalises the file (summary, index, footer) and is
-    idempotent. Raises OSError if ``path`` cannot be created.
+    idempotent. Raises OSError if ``path`` cannot be created. The file is written through a
+    :class:`~bintrack.live.spooled_file.SpooledFile` (with a ``reserve`` of disk space beside
+    it, bytes; None for the default): a ``flush`` or ``close`` that fails on a full or failing
+    disk raises OSError and may be tried again, or the file ended with :meth:`abandon`.
     """
 
-    def __init__(self, path: Path | str, deployment: Deployment, net: str, chunk_size: int = CHUNK_SIZE):
+    def __init__(self, path: Path | str, deployment: Deployment, net: str, chunk_size: int = CHUNK_SIZE,
+                 reserve: int | None = 0):
         self.path = Path(path)
         Keys(net)  # a valid network name
-        self._handle: IO[bytes] = open(self.path, "wb")
+        self._handle = SpooledFile(self.path, reserve)
         # No per-channel message indexes: the writer keeps each chunk's index in memory until the
         # file is finalised, ~19 kB per chunk with them (a recorder flushing every 5 s grew without
         # bound), 0.4 kB without. Readers seek by chunk index and read the chunk, as they may.
@@ -158,7 +163,10 @@ class RecordingWriter:
         self._schemas: dict[type[Message], int] = {}
         self._channels: dict[str, int] = {}
         self.count = 0
+        self.last_t = -math.inf  # event time of the newest message written, s
+        self.durable = (0, -math.inf)  # (messages, newest event time) the last successful flush put on disk
         self.closed = False
+        self._finished = False
 
     def write(self, key: str, t: float, payload: bytes, received_ns: int | None = None) -> None:
         """Record ``payload`` received on ``key`` with event time ``t`` (s) at wall-clock
@@ -174,6 +182,7 @@ class RecordingWriter:
                                  publish_time=time.time_ns() if received_ns is None else received_ns,
                                  sequence=self.count % 2**32)
         self.count += 1
+        self.last_t = max(self.last_t, t)
 
     def _channel(self, key: str) -> int:
         cls = message_type(key)
@@ -192,14 +201,36 @@ class RecordingWriter:
         so far survives the writer's process being killed."""
         if not self.closed:
             self._writer.flush()
+            self.durable = (self.count, self.last_t)
 
     def close(self) -> None:
-        """Finalise the file: the open chunk, the summary and the footer."""
+        """Finalise the file: the open chunk, the summary and the footer. On OSError (a full
+        disk) it stays open, and may be tried again or :meth:`abandon`-ed."""
+        if self.closed:
+            return
+        if not self._finished:
+            self.flush()  # the messages first: if only they fit, abandon() keeps them
+            self._finished = True
+            self._writer.finish()
+        self._handle.flush()
+        self.durable = (self.count, self.last_t)
+        self.closed = True
+        self._handle.close()
+
+    def free_reserve(self) -> bool:
+        """Give back the disk space reserved for finalising; whether there was any."""
+        return self._handle.free_reserve()
+
+    def abandon(self) -> None:
+        """End the file after what was flushed whole (:attr:`durable`), with no summary (a
+        finalised file that readers read from the start), dropping the rest; OSError if even
+        that cannot be written (the file then holds a readable prefix)."""
         if self.closed:
             return
         self.closed = True
         try:
-            self._writer.finish()
+            if self._handle.end_without_summary(keep_spool=not self._finished):
+                self.durable = (self.count, self.last_t)
         finally:
             self._handle.close()
 

@@ -45,12 +45,13 @@ class RecordingFiles:
     def open(self) -> None:
         """Start the current part's file (raises OSError); the header and the deployment are on
         disk whatever happens next."""
-        self.writer = RecordingWriter(self.path, self.deployment, self.net, chunk_size=CHUNK_SIZE)
+        self.writer = RecordingWriter(self.path, self.deployment, self.net, chunk_size=CHUNK_SIZE, reserve=None)
         self.writer.flush()
 
-    def copy_from(self, path: Path) -> tuple[int, float, float]:
-        """Copy the readable records of an interrupted recording into the current file: (how
-        many, the event time of the newest, that of the newest track set; s)."""
+    def copy_from(self, path: Path, copied: Callable | None = None) -> tuple[int, float, float]:
+        """Copy the readable records of an interrupted recording into the current file (telling
+        ``copied`` of each): (how many, the event time of the newest, that of the newest track
+        set; s)."""
         count, last_t, last_tracks = 0, 0.0, float("-inf")
         try:
             recording = open_recording(path, salvage=True)
@@ -58,6 +59,8 @@ class RecordingFiles:
                 log.warning("recorder: %s", recording.note())
             for record in recording.records():
                 self.writer.write(record.key, record.t, record.payload, record.received_ns)
+                if copied is not None:
+                    copied(record)
                 if record.kind == "tracks":
                     last_tracks = max(last_tracks, record.t)
                 last_t = max(last_t, record.t)

@@ -21,6 +21,7 @@ import zenoh
 from cryptography import x509
 
 from bintrack.errors import CommandError
+from bintrack.keys import Keys
 from bintrack.live.stack import ServiceCommand
 
 PROFILE = Path(__file__).resolve().parents[3] / "deploy" / "secure"
@@ -181,3 +182,34 @@ def restrict_sensor_agents(config: zenoh.Config, agents: dict[str, Iterable[str]
                   "key_exprs": ["bintrack/*/control/progress/sensor_agent/*", "bintrack/*/control/done/sensor_agent/*"]})
     for key, value in (("rules", rules), ("subjects", subjects), ("policies", policies)):
         config.insert_json5(f"access_control/{key}", json.dumps(value))
+
+
+def pin_tokens(config: zenoh.Config, tokens: dict[str, Iterable[str]]) -> str:
+    """Narrow a secure router's ``config`` so that each role may declare only the liveliness
+    tokens of its own instances in this run: ``tokens`` maps a role to the token keys of its
+    instances (``bintrack/<net>/alive/<service>/<id>``). A client holding a role's certificate can
+    then declare no other instance of it (a forged ``alive/sensor_agent/evil`` is denied by the
+    router). The region alive tokens stay as they were. Returns the rules as JSON (for the
+    routers of ``--regions``, as a ``--cfg access_control/rules:…``)."""
+    rules = json.loads(config.get_json("access_control/rules"))
+    for rule in rules:
+        role = rule["id"].removesuffix("-token")
+        if rule["id"].endswith("-token"):
+            rule["key_exprs"] = [*sorted(tokens.get(role, ())),
+                                 *(k for k in rule["key_exprs"] if "/alive/" not in k)]
+            if not rule["key_exprs"]:  # a role with no instance in this run may declare none
+                rule["permission"] = "deny"
+                rule["key_exprs"] = ["bintrack/**"]
+    text = json.dumps(rules)
+    config.insert_json5("access_control/rules", text)
+    return text
+
+
+def pin_run_tokens(config: zenoh.Config, commands: Iterable[ServiceCommand], net: str, stack: str) -> tuple[str, ...]:
+    """:func:`pin_tokens` for the services of ``up --secure`` (instance ids ``<stack>-<key>``);
+    the options that pin them in the routers of ``--regions`` too."""
+    tokens: dict[str, list[str]] = {}
+    for c in commands:
+        if c.name != "router":
+            tokens.setdefault(role_of(c.name), []).append(Keys(net).alive(c.name, f"{stack}-{c.key}"))
+    return ("--cfg", f"access_control/rules:{pin_tokens(config, tokens)}")

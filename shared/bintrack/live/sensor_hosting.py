@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 from bintrack.formats import Event
 from bintrack.keys import Keys
-from bintrack.live.checkpoint import SensorAgentCheckpoint
+from bintrack.live.checkpoint import CHECKPOINT_SPAN, SensorAgentCheckpoint
 from bintrack.bus_payloads import RawSample, SensorState, Transition
 from bintrack.message_base import SCHEMA_VERSION
 from bintrack.message_codec import encode_transition
@@ -18,7 +18,9 @@ from bintrack.transition_detector import TransitionDetector
 
 HISTORY = 256  # transitions kept per sensor for gap repair …
 HISTORY_SPAN = 60.0  # … and no older than this, s of event time behind the clock (memory stays flat)
-RESUME_SPAN = 5.0  # s of event time of sent transitions a checkpoint keeps (those a kill may catch in flight)
+# s of event time of sent transitions a checkpoint keeps: those a kill may catch in flight, and
+# all a consumer restarted with this agent may need (its checkpoint is up to CHECKPOINT_SPAN older)
+RESUME_SPAN = CHECKPOINT_SPAN + 2.0
 TRANSITION_FIELDS = tuple(Transition.model_fields)  # a checkpoint's layout of a sent transition: version, then Sent's
 
 

@@ -68,7 +68,7 @@ class Service:
         self.token = OwnToken(self.keys.alive(self.name, self.instance))
         self.guard = ControlGuard(self.keys, self.bad.report, lambda key: token_present(self.session, key))
         self.dispatch = Dispatch(self.listen_key(), self.guard)
-        self.presence = Presence(self.keys)
+        self.presence = Presence(self.keys, getattr(args, "stack", None), self.name)
         self.presence.listen(self.guard.on_presence)
         self.progress = ProgressReports(self.keys.progress(self.name, self.instance),
                                         self.keys.done(self.name, self.instance), self.publish,

@@ -17,6 +17,7 @@ import zenoh
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_MAX_PAYLOAD = 64 * 1024  # bytes; no bintrack message comes near it
 STATE_DIR_OPTION = "--state-dir"
+STACK_OPTION = "--stack"
 
 log = logging.getLogger("bintrack")
 
@@ -47,6 +48,10 @@ def add_bus_arguments(parser: argparse.ArgumentParser, *, net_default: str | Non
         group.add_argument(STATE_DIR_OPTION, metavar="DIR",
                            help="keep a checkpoint of this instance (named by --id) in DIR and resume from it "
                            "after a restart (default: none)")
+        group.add_argument(STACK_OPTION, metavar="ID",
+                           help="the run this instance belongs to (`up` gives its own): a liveliness token of an "
+                           "instance whose id does not start with ID- is another's, logged once and ignored "
+                           "(default: every token counts)")
 
 
 def zenoh_config(args: argparse.Namespace) -> zenoh.Config:

@@ -37,7 +37,7 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
                    tracker_args: tuple[str, ...] = (), view_port: int | None = None,
                    view_bind: str = "127.0.0.1", state_dir: str | None = None,
                    clock_period: float | None = None, foxglove_port: int | None = None,
-                   bridge_args: tuple[str, ...] = ()) -> list[ServiceCommand]:
+                   bridge_args: tuple[str, ...] = (), on_disk_full: str = "stop") -> list[ServiceCommand]:
     """The services in start order: the sensor agents, the peer agents if ``tracker`` runs on
     them, the base station, the recorder if ``record``, the view if ``view_port``, and last the replay of ``source`` (if
     any), which waits for all the others. ``estimates``: the peer tracker whose estimates
@@ -49,7 +49,8 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
     ``--clock-period`` (s of event time), None for its default; ``foxglove_port``: the Foxglove
     bridge on ws://``view_bind``:``foxglove_port``, None for none. A ``source`` that is an MQTT
     broker (``mqtt://HOST:PORT``, ``mqtts://…``) is read by the MQTT bridge instead of replay,
-    with its further options ``bridge_args`` (the sensor table, …)."""
+    with its further options ``bridge_args`` (the sensor table, …); ``on_disk_full``: the
+    recorder's ``--on-disk-full``."""
     bus = ("-e", endpoint, "--net", net)
     services = [ServiceCommand("sensor_agent", bus)]
     if runs_on_peers(tracker):
@@ -60,7 +61,8 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
             services.append(ServiceCommand("peer_agent", ("--tracker", estimates, *bus)))
         extra = (*tracker_args, *(("--estimates", estimates) if estimates is not None else ()))
         services.append(ServiceCommand("basestation", ("--tracker", tracker, *extra, *bus)))
-    services += _recorder_and_view(record, loop and source is not None, view_port, view_bind, bus, foxglove_port)
+    services += _recorder_and_view(record, loop and source is not None, view_port, view_bind, bus, foxglove_port,
+                                   on_disk_full)
     if source is not None and is_broker(source):
         period = [] if clock_period is None else ["--clock-period", _number(clock_period)]
         waits = ("--wait-for", ",".join(s.name for s in services))
@@ -115,7 +117,7 @@ def region_stack_commands(*, regions: list[str], endpoint: str, net: str, source
                           speed: float = 1.0, loop: bool = False, record: str | None = None,
                           tracker_args: tuple[str, ...] = (), view_port: int | None = None,
                           view_bind: str = "127.0.0.1", clock_period: float | None = None,
-                          foxglove_port: int | None = None) -> list[ServiceCommand]:
+                          foxglove_port: int | None = None, on_disk_full: str = "stop") -> list[ServiceCommand]:
     """The stack of a deployment cut into ``regions`` (mcmcda at the base stations): per region
     a router (meshed with the hub router at ``endpoint`` and the regions' routers before it), a
     sensor agent and a base station on that router; then on the hub the merge, the recorder if
@@ -133,7 +135,8 @@ def region_stack_commands(*, regions: list[str], endpoint: str, net: str, source
                                                        *bus), f"basestation-{region}"))
     bus = ("-e", endpoint, "--net", net)
     services.append(ServiceCommand("merge", bus))
-    services += _recorder_and_view(record, loop and source is not None, view_port, view_bind, bus, foxglove_port)
+    services += _recorder_and_view(record, loop and source is not None, view_port, view_bind, bus, foxglove_port,
+                                   on_disk_full)
     if source is not None:
         n = len(regions)
         wanted = [f"sensor_agent*{n}", f"basestation*{n}", *(c.name for c in services if c.name not in
@@ -144,15 +147,17 @@ def region_stack_commands(*, regions: list[str], endpoint: str, net: str, source
 
 
 def _recorder_and_view(record: str | None, looping: bool, view_port: int | None, view_bind: str,
-                       bus: tuple[str, ...], foxglove_port: int | None = None) -> list[ServiceCommand]:
-    """The recorder (into ``record``), the view (on ``view_port``) and the Foxglove bridge (on
-    ``foxglove_port``), those asked for."""
+                       bus: tuple[str, ...], foxglove_port: int | None = None,
+                       on_disk_full: str = "stop") -> list[ServiceCommand]:
+    """The recorder (into ``record``, with ``--on-disk-full`` if not stop), the view (on
+    ``view_port``) and the Foxglove bridge (on ``foxglove_port``), those asked for."""
     services = []
     if record is not None:
         # a looping replay never ends: record across the loops until stopped
         until = ("--until", "stopped") if looping else ()
         foxglove = ("--foxglove",) if foxglove_port is not None else ()  # and Foxglove's copy of the file
-        services.append(ServiceCommand("recorder", ("--out", record, *until, *foxglove, *bus)))
+        disk = ("--on-disk-full", on_disk_full) if on_disk_full != "stop" else ()
+        services.append(ServiceCommand("recorder", ("--out", record, *until, *foxglove, *disk, *bus)))
     if view_port is not None:
         # beyond loopback: `up` has checked for a token itself (and hands it over in the
         # environment); a container's map is published on the host's loopback alone

@@ -9,13 +9,18 @@ from collections.abc import Callable, Iterable
 import zenoh
 
 from bintrack.bus_payloads import TrackSet
+from bintrack.live.recording_files import FLUSH_SPAN
 from bintrack.message_codec import MessageError, decode, encode
 
-TRACKS_HISTORY = 1024  # recent track sets kept for the ``tracks?after=T`` queryable
+# the recent track sets kept for the ``tracks?after=T`` queryable: those of the last TRACKS_SPAN s
+# of event time (twice the span a recorder's flush leaves open to a kill, which it fetches back),
+# and at most TRACKS_HISTORY of them (memory stays bounded)
+TRACKS_SPAN = 2 * FLUSH_SPAN
+TRACKS_HISTORY = 16384
 
 
 class TrackHistory:
-    """The latest ``TrackSet`` published on ``key`` and the TRACKS_HISTORY before it."""
+    """The latest ``TrackSet`` published on ``key`` and those of the TRACKS_SPAN s before it."""
 
     def __init__(self, key: str):
         self.key = key
@@ -25,6 +30,8 @@ class TrackHistory:
     def add(self, tracks: TrackSet) -> None:
         self.latest = tracks
         self.recent.append(tracks)
+        while self.recent[0].t < tracks.t - TRACKS_SPAN:
+            self.recent.popleft()
 
     def restore(self, latest: TrackSet | None, recent: Iterable[TrackSet] = ()) -> None:
         """Take back what a checkpoint kept."""

@@ -55,8 +55,8 @@ class TransitionConsumer(Service):
             self.restore_extra(saved.extra)
         self.intake = GapRepair(self.name, self.keys, sensors, self.push, self.query, self.bad.report, state)
         if saved is not None:
-            log.info("%s: resumed at the clock tick t=%g s; %d transitions sent since fetched from the sensors' "
-                     "state", self.name, saved.tick, self.intake.fetch_since_received())
+            log.info("%s: resumed at the clock tick t=%g s; %s", self.name, saved.tick,
+                     self.intake.fetch_since_received())
         self.transition_keys = {sensor: self.keys.transition(sensor) for sensor in network_sensors}
         self.subscribe(self.keys.transition(), self.on_transition)
         self.subscribe(self.keys.progress("sensor_agent"), self.on_agent_progress)
@@ -121,8 +121,7 @@ class TransitionConsumer(Service):
 
     async def on_router_back(self) -> None:
         if self.intake is not None:
-            log.info("%s: %d transitions sent during the outage fetched from the sensors' state",
-                     self.name, self.intake.fetch_since_received())
+            log.info("%s: after the outage, %s", self.name, self.intake.fetch_since_received())
 
     def checkpoint_extra(self):
         """What a subclass adds to the checkpoint taken at each clock tick."""

@@ -1,0 +1,113 @@
+"""Faults in pairs, the fault matrix: every pair of the mcmcda stack's services SIGKILLed at once
+mid-run under ``bintrack up`` at ``--speed 0`` (each at a seed of its own) and two pairs at
+``--speed 2``; the peers' stack in tests/test_fault_peers.py, each router of ``--regions 2`` in
+tests/test_fault_routers.py.
+A restarted service fetches what it missed only once the peer it fetches from has caught up, so
+each run ends with the offline track rows, or with log lines naming every row it lost (their
+count is held to the difference); the recording never holds a track row twice. A seed picks
+where in event time the kill lands."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import random
+import re
+import signal
+from pathlib import Path
+
+import pytest
+
+from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
+
+from support import DATASETS, bintrack
+from test_faults import Up, exported_tracks
+
+MCMCDA = ("sensor_agent", "basestation", "recorder", "replay")
+LOST = re.compile(r"lost (\d+) track rows")
+SPAN = 40.0  # s of darpa-grid-3: three people, 113 mcmcda rows
+FINE = ("--clock-period", "0.1")  # at --speed 0, ticks that pace the slice over seconds (a kill lands mid-run)
+
+
+def cut(source: Path, out: Path, span: float) -> Path:
+    """The first ``span`` s of dataset ``source``, written to ``out``."""
+    ds = open_dataset(source)
+    return write_dataset(out, ds.deployment, [e for e in ds.events() if e.t < span],
+                         [TruthRow(*r) for r in ds.truth() if r.t < span])
+
+
+@pytest.fixture(scope="module")
+def field(tmp_path_factory) -> Path:
+    return cut(DATASETS / "darpa-grid-3", tmp_path_factory.mktemp("pairs") / "darpa-grid-3", SPAN)
+
+
+@pytest.fixture(scope="module")
+def offline(field, tmp_path_factory):
+    """tracks.csv rows of `bintrack track` per tracker (each computed once)."""
+    cache: dict[str, list] = {}
+
+    def rows(tracker: str) -> list:
+        if tracker not in cache:
+            out = tmp_path_factory.mktemp("offline") / f"{tracker}.csv"
+            bintrack("track", str(field), "--tracker", tracker, "--out", str(out), check=True)
+            cache[tracker] = read_tracks(out)
+        return cache[tracker]
+
+    return rows
+
+
+def kill_together(up: Up, victims: tuple[str, ...], at: float, pid_of=None) -> None:
+    """SIGKILL ``victims`` at once when event time reached ``at`` (s); wait for their restarts."""
+    up.event_time_at_least(at)
+    pids = [(pid_of or up.service_pid)(victim) for victim in victims]
+    for pid in pids:
+        os.kill(pid, signal.SIGKILL)
+    for victim in victims:
+        up.wait_for(lambda line: line.startswith(f"up: {victim} killed by SIGKILL"), f"{victim}'s death logged")
+        up.wait_for(lambda line: line.startswith(f"up: {victim} restarted"), f"{victim}'s restart logged")
+
+
+def check_rows(up: Up, live: list, offline: list) -> None:
+    """The live rows are the offline ones, but for rows the log names as lost (as many as it
+    says); none is recorded twice, none is one the offline run does not give."""
+    keys = [(r.t, r.track) for r in live]
+    assert len(keys) == len(set(keys)), f"{len(keys) - len(set(keys))} track rows recorded twice\n{up.log[-6000:]}"
+    extra = [r for r in live if r not in set(offline)]
+    assert not extra, f"{len(extra)} rows the offline run does not give, e.g. {extra[:3]}\n{up.log[-6000:]}"
+    missing = [r for r in offline if r not in set(live)]
+    said = sum(int(m.group(1)) for m in map(LOST.search, up.lines) if m)
+    assert said == len(missing), f"{len(missing)} rows missing, the log names {said}\n{up.log[-6000:]}"
+
+
+def kill_time(seed: int, start: float = 12.0, end: float = 30.0) -> float:
+    """Where a seed's kill lands, s of event time (while the tracks are there)."""
+    return round(random.Random(seed).uniform(start, end), 2)
+
+
+def run_with_a_kill(field: Path, tmp_path: Path, tracker: str, speed: float, victims, at: float,
+                    *options: str) -> tuple[Up, list]:
+    """``up`` of ``field`` recording, ``victims`` killed together at ``at`` s; (up, recorded rows)."""
+    recording = tmp_path / "run.mcap"
+    fine = FINE if speed == 0 else ()
+    up = Up(str(field), "--tracker", tracker, "--speed", str(speed), *fine, "--record", str(recording),
+            "--exit-at-end", *options)
+    kill_together(up, victims, at)
+    assert up.finish() == 0, up.log[-4000:]
+    return up, exported_tracks(recording, tmp_path)
+
+
+# each pair once, a seed of its own (where the kill lands); the suite's budget allows no more
+MCMCDA_PAIRS = [pytest.param(pair, seed, id="+".join(pair))
+                for seed, pair in enumerate(itertools.combinations(MCMCDA, 2), start=1)]
+
+
+@pytest.mark.parametrize("victims, seed", MCMCDA_PAIRS)
+def test_mcmcda_pairs_killed_together(field, offline, victims, seed, tmp_path):
+    up, live = run_with_a_kill(field, tmp_path, "mcmcda", 0, victims, kill_time(seed))
+    check_rows(up, live, offline("mcmcda"))
+
+
+@pytest.mark.parametrize("victims", [("sensor_agent", "basestation"), ("basestation", "recorder")], ids="+".join)
+def test_mcmcda_pairs_killed_together_at_speed_2(field, offline, victims, tmp_path):
+    up, live = run_with_a_kill(field, tmp_path, "mcmcda", 2, victims, kill_time(7, 12.0, 20.0))
+    check_rows(up, live, offline("mcmcda"))
