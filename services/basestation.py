@@ -107,6 +107,7 @@ class Basestation(TransitionConsumer):
             if isinstance(out, TrackSet):
                 self.tracks.add(out)
                 self.publish(self.tracks.key, out)
+                self.sent += 1
             elif isinstance(out, PositionReports):
                 self.publish(self.reports_key, out)
             elif isinstance(out, LineObjectEstimate):

@@ -82,6 +82,7 @@ class PeerAgent(TransitionConsumer):
             if isinstance(estimate, LocalEstimate) and (self.hosted is None or estimate.node in self.hosted):
                 self.estimates.add(estimate)
                 self.publish(self.keys.estimate(estimate.node), estimate)
+                self.sent += 1
 
     def answer_estimates(self, query: zenoh.Query) -> None:
         """``peer/*/estimate?after=T``: each estimate of the last ESTIMATE_SPAN s published after T

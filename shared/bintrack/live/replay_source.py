@@ -52,6 +52,7 @@ class ReplaySource:
         self.recent: deque[tuple[float, str, bytes]] = deque()
         self.recent_ticks: deque[float] = deque(maxlen=memory_ticks)
         self.last_tick: float | None = None
+        self.raw_published = 0  # raw samples published (or walked past by a restart), in each clock tick
 
     def play_on(self, keys: Keys) -> None:
         self.keys = keys
@@ -107,6 +108,7 @@ class ReplaySource:
 
     def _remember(self, key: str, payload: bytes) -> None:
         """Keep a raw sample put after the last tick, for ``recent`` and for sending it again."""
+        self.raw_published += 1
         self.recent.append((-math.inf if self.last_tick is None else self.last_tick, key, payload))
 
     def ticked(self, t: float) -> None:
