@@ -47,12 +47,9 @@ from bintrack.keys import Keys, ParsedKey, parse_key
 from bintrack.bus_payloads import Clock
 from bintrack.message_codec import MessageError, decode_view
 from bintrack.live.stack import ServiceCommand, is_broker, region_stack_commands, stack_commands
-from bintrack.regions import grid_areas, grid_shape
-from bintrack.live.secure_profile import exposed_keys, pin_run_tokens, secure_up
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_arguments, tracker_options
 from bintrack.trackers import TRACKER_NAMES, check_options as make_tracker_check, sensor_mismatch
-from bintrack.view.map_access import TOKEN_ENV, check_bind, token_from
-from bintrack.view.map_server import DEFAULT_BIND, DEFAULT_PORT, listening_socket
+from bintrack.view.map_socket import DEFAULT_BIND, DEFAULT_PORT, listening_socket
 
 SHOWN = (("raw", "events"), ("transition", "transitions"), ("estimate", "estimates"), ("tracks", "tracks"))
 STOP_TIMEOUT = 15.0
@@ -333,6 +330,8 @@ def _region_source(args: argparse.Namespace) -> tuple[tempfile.TemporaryDirector
     """For ``--regions N``: (a folder to remove afterwards or None, the dataset to replay, the
     region names). A dataset without regions is replayed from a folder beside it whose
     deployment.json names a grid of N (events and truth linked, not copied)."""
+    from bintrack.regions import grid_areas, grid_shape  # shapely: only for regions
+
     if args.tracker != "mcmcda":
         raise CommandError(f"--regions runs mcmcda at the region base stations; --tracker {args.tracker} cannot")
     if args.regions < 1:
@@ -432,9 +431,13 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise CommandError(str(exc)) from None
     view_bind = getattr(args, "view_bind", "127.0.0.1")
-    view_token = token_from(getattr(args, "view_token", None))
+    map_env: dict[str, str] = {}  # the map's token, handed to it out of the process list
     if getattr(args, "view", False):
+        from bintrack.view.map_access import TOKEN_ENV, check_bind, token_from  # aiohttp: only with the map
+
+        view_token = token_from(getattr(args, "view_token", None))
         check_bind(view_bind, view_token)
+        map_env = {TOKEN_ENV: view_token} if view_token else {}
     regions_dir = None
     with_regions = getattr(args, "regions", None) is not None
     if with_regions:
@@ -455,6 +458,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         commands = planned_stack(args, net, view_port, bridge_args=bridge_args)
     if args.secure:
+        # cryptography: loaded only for --secure
+        from bintrack.live.secure_profile import exposed_keys, pin_run_tokens, secure_up
+
         try:
             commands, config = secure_up(commands, args.certs, args.listen)
             exposed = exposed_keys(Path(args.certs))
@@ -499,7 +505,7 @@ def run(args: argparse.Namespace) -> int:
     presence.listen(monitor.on_presence)
     presence.declare(router, lambda handler: handler)
     entities = [*monitor.subscribe(router), presence]
-    env = {**os.environ, PARENT_ENV: str(os.getpid()), **({TOKEN_ENV: view_token} if view_token else {})}
+    env = {**os.environ, PARENT_ENV: str(os.getpid()), **map_env}
     group: int | None = None
     stopped_by: Stopped | None = None
     failed: str | None = None
