@@ -137,6 +137,10 @@ class Replay(Service):
         # loaded machine, and a restarted replay then waited for services that were up)
         self.follow_presence(self.gate.on_presence)
         self.subscribe(self.keys.progress(), self._on_progress)
+        try:  # the others fetch the deployment and start meanwhile; a bad row is one line, before "ready"
+            await self.checked
+        except ValueError as exc:  # FormatError
+            raise CommandError(str(exc)) from None
 
     def _on_recent(self, query: zenoh.Query) -> None:
         """``control/recent?after=T``: see :meth:`ReplaySource.recent_answer`."""
