@@ -41,9 +41,14 @@ Everything runs on loopback (127.0.0.1) through one Zenoh router embedded in thi
    receipt − when the tick that released the output was due. Outputs released only by the
    end-of-stream flush are left out.
 
+5. **The user's path** (``benchmarks/user_path.py``): on part 3's dataset, whole commands as a
+   user runs them, start-up included: ``bintrack track`` offline, ``bintrack up … --speed 0
+   --exit-at-end --record`` (and its start-up to the first raw sample) and ``bintrack demo``;
+   three rounds, each beside a run of part 3, medians.
+
 Run: ``nice -n 10 .venv/bin/python benchmarks/bus.py`` (a few minutes; progress on stderr, table
 on stdout). ``--keep DIR`` keeps the datasets, recording and service logs there; ``--no-stack``
-leaves out part 3.
+leaves out parts 3 and 5; ``--user-only`` runs only part 5 with its three runs of part 3.
 """
 
 from __future__ import annotations
@@ -81,6 +86,7 @@ from bintrack.sim.scenarios import simulate
 from bintrack.trackers import make_tracker
 
 from bench_support import REPO, free_port
+from user_path import user_round, user_rows
 LOOPBACK = "127.0.0.1"
 
 RAW_MESSAGES = 200_000  # per run of the raw Zenoh figure
@@ -96,6 +102,7 @@ BASESTATION_DEFAULT_LATENESS = basestation_service.build_parser().get_default("l
 LATENCY_RUNS = (  # (label, peer --lateness, basestation --lateness; None for the service's default)
     ("the services' defaults", None, None),
 )
+USER_ROUNDS = 3  # part 5: rounds of the user's commands, each beside a run of part 3
 STACK_SCENARIO = dict(name="darpa-grid", seed=1, people=10, duration=3600.0)  # full stack with mcmcda
 
 _started = time.monotonic()
@@ -392,25 +399,46 @@ class StackResult:
         return self.span / self.wall
 
 
-def full_stack(children: Children, session: zenoh.Session, work: Path) -> StackResult:
+@dataclass
+class StackData:
+    """The full stack's dataset, and the same tracker run on it offline in this process."""
+
+    source: Path
+    events: int
+    span: float  # s of event time
+    offline_rows: list
+    offline_cpu: float  # s of CPU (bintrack track's code path)
+
+
+def stack_data(work: Path) -> StackData:
     options = dict(STACK_SCENARIO)
     name = options.pop("name")
     say(f"simulating {name} {options} for the full stack")
     sim = simulate(name, **options)
     source = write_dataset(work / "stack-dataset", sim.deployment, sim.events, sim.truth)
-    span = sim.events[-1].t - sim.events[0].t
-    keys = Keys("bench-stack")
-    recording = work / "stack.mcap"
+    say("full stack: the same tracker offline")
+    dataset = open_dataset(source)
+    cpu0 = time.process_time()
+    offline_rows = sorted(output_rows(run_tracker(dataset, make_tracker("mcmcda", dataset.deployment))))
+    offline_cpu = time.process_time() - cpu0
+    return StackData(source, len(sim.events), sim.events[-1].t - sim.events[0].t, offline_rows, offline_cpu)
+
+
+def full_stack(children: Children, session: zenoh.Session, work: Path, data: StackData | None = None,
+               k: int = 1) -> StackResult:
+    data = data or stack_data(work)
+    keys = Keys(f"bench-stack{k}")
+    recording = work / f"stack{k}.mcap"
     done_at: list[float] = []
     done_sub = session.declare_subscriber(keys.done("recorder"), lambda _s: done_at.append(time.time()))
-    tag = "stack"
+    tag = f"stack{k}"
     try:
         recorder = children.start("recorder", "--out", str(recording), "--net", keys.net, tag=tag)
         agent = children.start("sensor_agent", "--net", keys.net, tag=tag)
         base = children.start("basestation", "--tracker", "mcmcda", "--net", keys.net, tag=tag)
-        replay = children.start("replay", str(source), "--speed", "0", "--wait-for",
+        replay = children.start("replay", str(data.source), "--speed", "0", "--wait-for",
                                 "sensor_agent,basestation,recorder", "--net", keys.net, tag=tag)
-        say(f"full stack: replay → sensor_agent → basestation mcmcda → recorder on {len(sim.events)} events started")
+        say(f"full stack: replay → sensor_agent → basestation mcmcda → recorder on {data.events} events started")
         children.check(recorder, recorder.wait(1800.0))
         exited = time.time()
         children.check(replay, replay.wait(30.0))
@@ -424,16 +452,11 @@ def full_stack(children: Children, session: zenoh.Session, work: Path) -> StackR
     transitions = sum(1 for _ in recorded.records(lambda key: key.endswith("/transition")))
     live_rows = track_rows(recorded, "tracks")
     track_sets = sum(1 for _ in recorded.records(lambda key: key.endswith("/tracks")))
-    say("full stack: the same tracker offline")
-    dataset = open_dataset(source)
-    cpu0 = time.process_time()
-    offline_rows = sorted(output_rows(run_tracker(dataset, make_tracker("mcmcda", dataset.deployment))))
-    offline_cpu = time.process_time() - cpu0
-    result = StackResult(len(sim.events), span, transitions, track_sets, end - first_raw_ns / 1e9,
-                         {c.name: c.cpu for c in (replay, agent, base, recorder)}, offline_cpu,
-                         live_rows == offline_rows)
-    say(f"full stack: {span:.0f} s of event time in {result.wall:.1f} s = {result.speed:.0f} × real time; "
-        f"offline {offline_cpu:.1f} s of CPU; rows identical: {result.identical}")
+    result = StackResult(data.events, data.span, transitions, track_sets, end - first_raw_ns / 1e9,
+                         {c.name: c.cpu for c in (replay, agent, base, recorder)}, data.offline_cpu,
+                         live_rows == data.offline_rows)
+    say(f"full stack: {data.span:.0f} s of event time in {result.wall:.1f} s = {result.speed:.0f} × real time; "
+        f"offline {data.offline_cpu:.1f} s of CPU; rows identical: {result.identical}")
     return result
 
 
@@ -569,8 +592,20 @@ def _ms(values: np.ndarray) -> str:
     return f"{p50 * 1e3:,.0f} / {p99 * 1e3:,.0f}"
 
 
+def user_path(children: Children, session: zenoh.Session, work: Path,
+              data: StackData) -> tuple[list[tuple[str, str, str]], list[StackResult]]:
+    """Part 5: USER_ROUNDS rounds of part 3 and of the user's commands, alternating; the table's
+    rows and part 3's runs."""
+    stacks, rounds = [], []
+    for k in range(1, USER_ROUNDS + 1):
+        say(f"5/5 user's path, round {k}/{USER_ROUNDS}")
+        stacks.append(full_stack(children, session, work, data, k=10 + k))
+        rounds.append(user_round(data.source, data.offline_rows, work, k, say))
+    return user_rows(rounds, [s.speed for s in stacks], data.span), stacks
+
+
 def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyResult], payload_size: int,
-          stack: StackResult | None) -> str:
+          stack: StackResult | None, user: list[tuple[str, str, str]] = ()) -> str:
     rows: list[tuple[str, str, str]] = []
     raw_median = statistics.median(raw["publisher"])
     put_median = statistics.median(raw["session.put"])
@@ -612,6 +647,7 @@ def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyRe
                              "ms p50 / p99"))
             else:
                 rows.append((name, "–", "none received"))
+    rows += user
     width = max(len(r[0]) for r in rows)
     vwidth = max(len(r[1]) for r in rows)
     lines = [f"{'figure':<{width}}  {'value':>{vwidth}}  unit", "-" * (width + vwidth + 26)]
@@ -646,7 +682,7 @@ def table(raw: dict[str, list[float]], pipe: PipelineResult, lat: list[LatencyRe
     return "\n".join(lines)
 
 
-def run(keep: Path | None, skip_stack: bool = False, stack_only: bool = False) -> int:
+def run(keep: Path | None, skip_stack: bool = False, stack_only: bool = False, user_only: bool = False) -> int:
     with tempfile.TemporaryDirectory(prefix="bintrack-bench-") as tmp:
         work = keep if keep is not None else Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
@@ -666,29 +702,38 @@ def run(keep: Path | None, skip_stack: bool = False, stack_only: bool = False) -
                           f"{n} {c / stack.transitions * 1000:.3f} s" for n, c in stack.cpu.items() if c is not None)
                       + f"; offline {stack.span / stack.offline_cpu:,.0f} × real time; rows identical: {stack.identical}")
                 return 0
+            if user_only:
+                session = client_session(endpoint)
+                rows, _ = user_path(children, session, work, stack_data(work))
+                width = max(len(r[0]) for r in rows)
+                print("\n".join(f"{f:<{width}}  {v:>14}  {u}" for f, v, u in rows))
+                print(f"load average before: {LOAD_BEFORE}; after: {' / '.join(f'{x:.2f}' for x in os.getloadavg())}")
+                return 0
             payload = encode(Transition(t=123.456789, sensor="n123", value=1, previous=0, seq=17,
                                         source=f"{socket.gethostname()}-{os.getpid()}", source_seq=1234))
-            say(f"1/4 raw Zenoh: {RAW_RUNS} runs of {RAW_MESSAGES:,} messages of {len(payload)} bytes")
+            say(f"1/5 raw Zenoh: {RAW_RUNS} runs of {RAW_MESSAGES:,} messages of {len(payload)} bytes")
             raw = raw_zenoh(endpoint, payload, RAW_MESSAGES, RAW_RUNS)
 
             session = client_session(endpoint)
-            say("2/4 pipeline throughput")
+            say("2/5 pipeline throughput")
             pipe = pipeline(children, session, work)
 
-            say("3/4 full stack with mcmcda")
-            stack = None if skip_stack else full_stack(children, session, work)
+            say("3/5 full stack with mcmcda")
+            data = None if skip_stack else stack_data(work)
+            stack = None if skip_stack else full_stack(children, session, work, data)
 
-            say("4/4 latency at --speed 1")
+            say("4/5 latency at --speed 1")
             sliced, _t_first, t_last = slice_dataset(LATENCY_SOURCE, LATENCY_SLICE, work / "latency-dataset")
             lat = [latency(children, session, sliced, t_last, label, peer, base, tag=f"latency{k}")
                    for k, (label, peer, base) in enumerate(LATENCY_RUNS, start=1)]
+            user = [] if skip_stack else user_path(children, session, work, data)[0]
         finally:
             children.stop_all()
             if session is not None:
                 session.close()
             router.close()
         say(f"done in {time.monotonic() - _started:.0f} s")
-        print(table(raw, pipe, lat, len(payload), stack))
+        print(table(raw, pipe, lat, len(payload), stack, user))
     return 0
 
 
@@ -698,11 +743,13 @@ def main() -> int:
                         help="keep the datasets, the recording and the service logs in DIR")
     parser.add_argument("--no-stack", action="store_true", help="leave out the full-stack mcmcda run")
     parser.add_argument("--stack-only", action="store_true", help="only the full-stack mcmcda run")
+    parser.add_argument("--user-only", action="store_true",
+                        help="only the user's path (part 5), beside its three full-stack runs")
     args = parser.parse_args()
     # SIGTERM ends the run through the finally blocks, which stop every subprocess.
     signal.signal(signal.SIGTERM, _terminated)
     try:
-        return run(args.keep, args.no_stack, args.stack_only)
+        return run(args.keep, args.no_stack, args.stack_only, args.user_only)
     except KeyboardInterrupt:
         say("interrupted; subprocesses stopped")
         return 130

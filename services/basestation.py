@@ -39,7 +39,6 @@ from bintrack.live.track_history import TrackHistory
 from bintrack.live.transition_intake import TransitionConsumer
 from bintrack.bus_payloads import Clock, LineObjectEstimate, LocalEstimate, PositionReports, TrackSet, VelocityEstimate
 from bintrack.message_base import Message
-from bintrack.regions import RegionMap
 from bintrack.services.estimate_relay import EstimateRelay
 from bintrack.trackers import TRACKER_NAMES, check_options, make_tracker, runs_on_peers
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_options
@@ -64,6 +63,8 @@ class Basestation(TransitionConsumer):
             return
         network, region = deployment, self.args.region
         if region is not None:
+            from bintrack.regions import RegionMap  # shapely: loaded only for a region
+
             try:
                 deployment = RegionMap(network).sub_deployment(region, self.args.band)
             except ValueError as exc:
@@ -107,6 +108,7 @@ class Basestation(TransitionConsumer):
             if isinstance(out, TrackSet):
                 self.tracks.add(out)
                 self.publish(self.tracks.key, out)
+                self.sent += 1
             elif isinstance(out, PositionReports):
                 self.publish(self.reports_key, out)
             elif isinstance(out, LineObjectEstimate):

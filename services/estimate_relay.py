@@ -148,3 +148,4 @@ class EstimateRelay(TransitionConsumer):
         for out in outputs:
             self.tracks.add(out)
             self.publish(self.tracks.key, out)
+            self.sent += 1

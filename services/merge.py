@@ -46,6 +46,7 @@ class Merge(Service):
         self.merge: RegionMerge | None = None
         self.tracks = TrackHistory(self.keys.tracks())
         self.departed: dict[str, float | None] = {}  # region gone → the first tick (s) after it went
+        self.sent = 0  # track sets published, in each progress report
 
     async def setup(self) -> None:
         deployment = await self.wait_for_deployment()
@@ -165,12 +166,13 @@ class Merge(Service):
             elif tick.t >= since + DEPARTED_HOLD + lead:
                 del self.departed[region]
                 self.emit(self.merge.lost(region))
-        self.report_progress(tick.t)
+        self.report_progress(tick.t, sent=self.sent)
 
     def emit(self, merged: list[TrackSet]) -> None:
         for tracks in merged:
             self.tracks.add(tracks)
             self.publish(self.tracks.key, tracks)
+            self.sent += 1
         if merged:
             self.checkpoints.save_throttled(merged[-1].t, lambda: MergeCheckpoint(self.merge, self.tracks.latest,
                                                                                   list(self.tracks.recent)))

@@ -167,7 +167,7 @@ class MqttBridge(Service):
                 again = self.resend_before is not None and s.t <= self.resend_before
                 self._put(key, payload, RESENT if again else None)
                 self.recent.add(before, key, payload)
-            self._put(self.keys.clock(), encode(Clock(t=tick)), control)
+            self._put(self.keys.clock(), encode(Clock(t=tick, sent=self.core.released)), control)
             self.gate.sent.append(tick)
             self.recent.forget_before(self.gate.sent[0])
             if self.journal is not None:

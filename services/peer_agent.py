@@ -25,7 +25,6 @@ from bintrack.errors import CommandError
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_options
 from bintrack.trackers import PEER_TRACKERS, make_tracker
 from bintrack.live.transition_intake import TransitionConsumer
-from bintrack.regions import RegionMap
 from bintrack.message_codec import encode
 
 # s of event time of estimates kept for a restarted relay: its checkpoint is up to CHECKPOINT_SPAN
@@ -62,6 +61,8 @@ class PeerAgent(TransitionConsumer):
         self.hosted = set(self.args.sensors.split(",")) if self.args.sensors else None
         network = deployment
         if self.args.region is not None:
+            from bintrack.regions import RegionMap  # shapely: loaded only for a region
+
             regions = RegionMap(deployment)
             try:
                 own = set(regions.own_sensors(self.args.region))
@@ -82,6 +83,7 @@ class PeerAgent(TransitionConsumer):
             if isinstance(estimate, LocalEstimate) and (self.hosted is None or estimate.node in self.hosted):
                 self.estimates.add(estimate)
                 self.publish(self.keys.estimate(estimate.node), estimate)
+                self.sent += 1
 
     def answer_estimates(self, query: zenoh.Query) -> None:
         """``peer/*/estimate?after=T``: each estimate of the last ESTIMATE_SPAN s published after T

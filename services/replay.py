@@ -16,6 +16,7 @@ service holding an ``alive/`` token, replays excepted) has reported progress up 
 from __future__ import annotations
 
 import argparse
+import asyncio
 import logging
 import secrets
 
@@ -101,14 +102,17 @@ class Replay(Service):
         except ValueError as exc:
             raise CommandError(f"{exc}; give a network name with --net") from None
         super().__init__(args)
-        warning = (self.source.span.warning(f"{args.source}/events.csv") if self.source.span
-                   else self.source.recording.note())
-        if warning:
-            log.warning("replay: %s", warning)
+        if self.source.recording is not None and self.source.recording.note():
+            log.warning("replay: %s", self.source.recording.note())
         self.source.play_on(self.keys)
         wanted = list(dict.fromkeys(name.strip() for item in args.wait_for for name in item.split(",") if name.strip()))
         self.gate = ReplayGate(wanted, lambda: self.router_watch.lost_at is not None, self.stopping)
         self.player: ReplayPlayer | None = None  # made in setup, once the run is known
+        self.checked: asyncio.Task | None = None  # every row of the source read, while the others start
+
+    def router_unreachable(self) -> None:
+        """No router yet: read every row now, so that a bad source is said at once."""
+        self.source.check()
 
     def listen_key(self) -> str:
         """Replay hears only the services' progress reports (not the traffic it causes)."""
@@ -120,6 +124,7 @@ class Replay(Service):
             self.checkpoints.run_id = secrets.token_hex(8)
         payload, run = encode(self.source.deployment), self.checkpoints.run_id.encode()
         self.serve(self.keys.deployment(), lambda query: query.reply(self.keys.deployment(), payload, attachment=run))
+        self.checked = asyncio.create_task(asyncio.to_thread(self.source.check))
         plan = iter(schedule(self.source.items, period=self.args.clock_period, max_ahead=self.args.max_ahead,
                              recorded_ticks=self.source.recording is not None, loop=self.args.loop,
                              max_gap=self.args.max_gap))
@@ -132,6 +137,10 @@ class Replay(Service):
         # loaded machine, and a restarted replay then waited for services that were up)
         self.follow_presence(self.gate.on_presence)
         self.subscribe(self.keys.progress(), self._on_progress)
+        try:  # the others fetch the deployment and start meanwhile; a bad row is one line, before "ready"
+            await self.checked
+        except ValueError as exc:  # FormatError
+            raise CommandError(str(exc)) from None
 
     def _on_recent(self, query: zenoh.Query) -> None:
         """``control/recent?after=T``: see :meth:`ReplaySource.recent_answer`."""
@@ -169,8 +178,13 @@ class Replay(Service):
                     log.error("replay: no liveliness token from %s on %s after %g s; is it running on this network?",
                               ", ".join(gate.missing()), self.keys.alive(), self.args.ready_timeout)
                     self.exit_status = 1
+                self.checked.cancel()
                 return
         try:
+            await self.checked  # every row read (and found good) before anything is published
+            warning = self.source.span.warning(f"{self.args.source}/events.csv") if self.source.span else None
+            if warning:
+                log.warning("replay: %s", warning)
             await self.player.play(self._control())
         except ValueError as exc:  # FormatError, NothingToReplay, a recorded payload that is not msgpack
             log.error("replay: %s", exc)

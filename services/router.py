@@ -20,7 +20,7 @@ import zenoh
 
 from bintrack.live.parent_watch import PARENT_ENV
 from bintrack.live.service import configure_logging, log
-from bintrack.live.session_options import zenoh_config
+from bintrack.live.session_options import no_scouting_wait, zenoh_config
 
 
 def mesh_config(args: argparse.Namespace) -> zenoh.Config:
@@ -30,6 +30,8 @@ def mesh_config(args: argparse.Namespace) -> zenoh.Config:
     config = zenoh_config(args)
     if not (args.config or any(c.startswith("scouting/gossip") for c in args.cfg)):
         config.insert_json5("scouting/gossip/enabled", "false")
+        if not any(c.startswith("scouting/delay") for c in args.cfg):
+            no_scouting_wait(config)
     if args.connect:
         # a router of the mesh that is down (or not up yet) is retried, not given up on
         config.insert_json5("connect/timeout_ms", json.dumps({"router": -1, "peer": -1, "client": 0}))

@@ -25,7 +25,6 @@ from bintrack.live.service import Service, log, service_main
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.bus_payloads import Clock, EndOfStream, RawSample
 from bintrack.message_codec import MessageError, decode_view, encode, is_resent
-from bintrack.regions import RegionMap
 from bintrack.transition_detector import TransitionDetector
 
 RETRY = 0.5  # s between asks for replay's recent samples
@@ -48,6 +47,8 @@ class SensorAgent(Service):
             return
         self.sensors = deployment.by_id()
         if self.args.region is not None:
+            from bintrack.regions import RegionMap  # shapely: loaded only for a region
+
             try:
                 hosted = RegionMap(deployment).own_sensors(self.args.region)
             except ValueError as exc:

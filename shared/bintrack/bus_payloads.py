@@ -137,7 +137,9 @@ class Clock(Message):
     """Event time advances even when no sensor reports. Also a service's progress report."""
 
     t: Seconds
-    sent: int | None = Field(None, ge=0, description="in a sensor agent's progress report: transitions it has sent so far")
+    sent: int | None = Field(None, ge=0, description="what the sender has sent so far: in replay's (or the MQTT "
+                             "bridge's) tick its raw samples; in a progress report a sensor agent's transitions, a "
+                             "peer agent's estimates, a base station's or the merge's track sets")
     released: float | None = Field(None, description="in a tracker service's progress report: its watermark, s — "
                                    "every output of an event time before it has been published")
 

@@ -36,6 +36,7 @@ from pathlib import Path
 import zenoh
 
 from bintrack.argtypes import add_alias, output_file, port_number, positive_float
+from bintrack.live.checkpoint import memory_folder
 from bintrack.live.disk_full import EXIT_WRITE_FAILED, MODES as DISK_FULL_MODES
 from bintrack.live.parent_watch import PARENT_ENV
 from bintrack.live.presence import Presence
@@ -44,14 +45,11 @@ from bintrack.errors import CommandError
 from bintrack.formats import DEPLOYMENT_FILE, open_dataset, write_deployment
 from bintrack.keys import Keys, ParsedKey, parse_key
 from bintrack.bus_payloads import Clock
-from bintrack.message_codec import MessageError, decode
+from bintrack.message_codec import MessageError, decode_view
 from bintrack.live.stack import ServiceCommand, is_broker, region_stack_commands, stack_commands
-from bintrack.regions import grid_areas, grid_shape
-from bintrack.live.secure_profile import exposed_keys, pin_run_tokens, secure_up
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_arguments, tracker_options
 from bintrack.trackers import TRACKER_NAMES, check_options as make_tracker_check, sensor_mismatch
-from bintrack.view.map_access import TOKEN_ENV, check_bind, token_from
-from bintrack.view.map_server import DEFAULT_BIND, DEFAULT_PORT, listening_socket
+from bintrack.view.map_socket import DEFAULT_BIND, DEFAULT_PORT, listening_socket
 
 SHOWN = (("raw", "events"), ("transition", "transitions"), ("estimate", "estimates"), ("tracks", "tracks"))
 STOP_TIMEOUT = 15.0
@@ -136,16 +134,21 @@ class RouterPortTaken(CommandError):
 
 @dataclass
 class Monitor:
-    """Counts what crosses the bus (from Zenoh callbacks: counters only, no Zenoh calls)."""
+    """What the stack has done, from the services' own reports, not from its traffic: replay's
+    clock ticks (event time, and the raw samples it has published), the progress reports (what
+    each instance has sent: ``stages`` names the kind of SHOWN each service's count is) and the
+    done reports. From Zenoh callbacks: counters only, no Zenoh calls."""
 
     keys: Keys
     ours: set[str] = field(default_factory=set)  # instance ids of this stack's services
+    stages: dict[str, str] = field(default_factory=dict)  # service → the kind it sends
     counts: Counter = field(default_factory=Counter)
     event_time: float | None = None
     done: set[str] = field(default_factory=set)
     foreign: set[str] = field(default_factory=set)  # alive/<service>/<id> of other instances, not yet said
     said: set[str] = field(default_factory=set)  # those said already
     lock: threading.Lock = field(default_factory=threading.Lock)
+    _sent: dict[tuple[str, str], tuple[int, int]] = field(default_factory=dict)  # instance → (before restarts, now)
 
     def on_presence(self, parsed: ParsedKey, present: bool) -> None:
         """A service's token came or went (a Presence listener, on a Zenoh thread)."""
@@ -153,20 +156,50 @@ class Monitor:
             with self.lock:
                 self.foreign.add(f"{parsed.service}/{parsed.instance}")
 
-    def on_sample(self, sample: zenoh.Sample) -> None:
+    def subscribe(self, session: zenoh.Session) -> list:
+        """Its subscribers on ``session``: the clock, the progress and the done reports."""
+        return [session.declare_subscriber(self.keys.clock(), self.on_clock),
+                session.declare_subscriber(self.keys.progress(), self.on_progress),
+                session.declare_subscriber(self.keys.done(), self.on_done)]
+
+    def on_clock(self, sample: zenoh.Sample) -> None:
+        try:
+            tick = decode_view(Clock, sample.payload.to_bytes())
+        except MessageError:
+            return
+        with self.lock:
+            self.event_time = tick.t
+            if tick.sent is not None:
+                self._count(("replay", ""), "raw", tick.sent)
+
+    def on_progress(self, sample: zenoh.Sample) -> None:
+        try:
+            parsed = parse_key(str(sample.key_expr))
+            report = decode_view(Clock, sample.payload.to_bytes())
+        except (ValueError, MessageError):
+            return
+        kind = self.stages.get(parsed.service)
+        if kind is not None and report.sent is not None:
+            with self.lock:
+                self._count((parsed.service, parsed.instance), kind, report.sent)
+
+    def _count(self, instance: tuple[str, str], kind: str, sent: int) -> None:
+        """``instance`` has sent ``sent`` so far (a restarted one counts again from its checkpoint,
+        or from 0: what it had counted before stays counted)."""
+        before, now = self._sent.get(instance, (0, 0))
+        total = before + now
+        if sent < now:
+            before = total
+        self._sent[instance] = before, sent
+        self.counts[kind] += before + sent - total
+
+    def on_done(self, sample: zenoh.Sample) -> None:
         try:
             parsed = parse_key(str(sample.key_expr))
         except ValueError:
             return
         with self.lock:
-            self.counts[parsed.kind] += 1
-            if parsed.kind == "done":
-                self.done.add(parsed.service)
-            elif parsed.kind == "clock":
-                try:
-                    self.event_time = decode(Clock, sample.payload.to_bytes()).t
-                except MessageError:
-                    pass
+            self.done.add(parsed.service)
 
     def snapshot(self) -> tuple[Counter, float | None, set[str]]:
         with self.lock:
@@ -297,6 +330,8 @@ def _region_source(args: argparse.Namespace) -> tuple[tempfile.TemporaryDirector
     """For ``--regions N``: (a folder to remove afterwards or None, the dataset to replay, the
     region names). A dataset without regions is replayed from a folder beside it whose
     deployment.json names a grid of N (events and truth linked, not copied)."""
+    from bintrack.regions import grid_areas, grid_shape  # shapely: only for regions
+
     if args.tracker != "mcmcda":
         raise CommandError(f"--regions runs mcmcda at the region base stations; --tracker {args.tracker} cannot")
     if args.regions < 1:
@@ -396,9 +431,13 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise CommandError(str(exc)) from None
     view_bind = getattr(args, "view_bind", "127.0.0.1")
-    view_token = token_from(getattr(args, "view_token", None))
+    map_env: dict[str, str] = {}  # the map's token, handed to it out of the process list
     if getattr(args, "view", False):
+        from bintrack.view.map_access import TOKEN_ENV, check_bind, token_from  # aiohttp: only with the map
+
+        view_token = token_from(getattr(args, "view_token", None))
         check_bind(view_bind, view_token)
+        map_env = {TOKEN_ENV: view_token} if view_token else {}
     regions_dir = None
     with_regions = getattr(args, "regions", None) is not None
     if with_regions:
@@ -419,6 +458,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         commands = planned_stack(args, net, view_port, bridge_args=bridge_args)
     if args.secure:
+        # cryptography: loaded only for --secure
+        from bintrack.live.secure_profile import exposed_keys, pin_run_tokens, secure_up
+
         try:
             commands, config = secure_up(commands, args.certs, args.listen)
             exposed = exposed_keys(Path(args.certs))
@@ -441,14 +483,16 @@ def run(args: argparse.Namespace) -> int:
         raise RouterPortTaken(f"cannot start the router on {args.listen} ({str(exc).split(' at ')[0]}); "
                            "is another one running? choose another with --listen") from None
     keys = Keys(net)
-    state_dir = tempfile.TemporaryDirectory(prefix="bintrack-up-")  # the services' checkpoints
+    state_dir = tempfile.TemporaryDirectory(prefix="bintrack-up-", dir=memory_folder())  # the services' checkpoints
     supervised = {c.key: Supervised(c, [*c.argv(sys.executable), *pinned] if c.name == "router" else
                                     [*c.argv(sys.executable), "--id", f"{stack_id}-{c.key}", STATE_DIR_OPTION,
                                      state_dir.name, STACK_OPTION, stack_id, *(("--socket-fd", str(view_socket.fileno()))
                                                        if c.name == "view" else ())])
                   for c in commands}
     passed = {"view": (view_socket.fileno(),)} if view_socket is not None else {}
-    monitor = Monitor(keys, ours={f"{stack_id}-{name}" for name in supervised})
+    monitor = Monitor(keys, ours={f"{stack_id}-{name}" for name in supervised},
+                      stages={"sensor_agent": "transition", "peer_agent": "estimate",
+                              "merge" if with_regions else "basestation": "tracks"})
     foreign = _foreign_now(router, keys, monitor.ours)
     if foreign:
         router.close()
@@ -460,8 +504,8 @@ def run(args: argparse.Namespace) -> int:
     presence = Presence(keys)
     presence.listen(monitor.on_presence)
     presence.declare(router, lambda handler: handler)
-    entities = [router.declare_subscriber(keys.all(), monitor.on_sample), presence]
-    env = {**os.environ, PARENT_ENV: str(os.getpid()), **({TOKEN_ENV: view_token} if view_token else {})}
+    entities = [*monitor.subscribe(router), presence]
+    env = {**os.environ, PARENT_ENV: str(os.getpid()), **map_env}
     group: int | None = None
     stopped_by: Stopped | None = None
     failed: str | None = None

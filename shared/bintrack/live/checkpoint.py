@@ -8,7 +8,8 @@ A checkpoint holds live Python objects (a tracker's state, a detector's), so it 
 and unpickling a file runs whatever code the file names. The defence is the one OpenSSH uses
 for its keys: the file and its folder must belong to the user running the service and be
 writable by nobody else; otherwise the checkpoint is refused with one line and the service
-starts afresh. ``bintrack up`` keeps them in a private temporary folder (mode 0700).
+starts afresh. ``bintrack up`` keeps them in a private temporary folder (mode 0700), in memory
+where it can (:func:`memory_folder`).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ if TYPE_CHECKING:
     from bintrack.transition_detector import TransitionDetector
 
 CHECKPOINT_INTERVAL = 1.0  # s of wall clock between two throttled checkpoints …
+MEMORY_FOLDER = "/dev/shm"  # Linux's tmpfs for every user (sticky, like /tmp)
 CHECKPOINT_SPAN = 8.0  # … or s of event time, whichever comes first (well inside the sensors' HISTORY_SPAN)
 
 log = logging.getLogger("bintrack")
@@ -71,6 +73,14 @@ def load_checkpoint(path: str):
             return CheckpointUnpickler(handle).load()
     except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError, ValueError) as exc:
         raise CheckpointRefused(f"unreadable ({type(exc).__name__}: {exc})") from exc
+
+
+def memory_folder() -> str | None:
+    """Where a stack's private state folder goes: in memory (tmpfs) if this machine has one
+    open to this user, else None (the system's temporary folder). Sensor agents and replay save
+    a checkpoint at every clock tick; on ext4, replacing a file by a rename writes it to disk
+    first, some 4 ms each, against 0.1 ms in memory."""
+    return MEMORY_FOLDER if os.path.isdir(MEMORY_FOLDER) and os.access(MEMORY_FOLDER, os.W_OK | os.X_OK) else None
 
 
 def save_checkpoint(path: str, state) -> None:

@@ -10,7 +10,7 @@ import zenoh
 from bintrack.deployment_model import Deployment
 from bintrack.message_codec import MessageError, decode
 
-RETRY = 0.3  # s between two asks while nobody answers
+RETRY = 0.05  # s between two asks while nobody answers (replay may still be starting)
 
 log = logging.getLogger("bintrack")
 

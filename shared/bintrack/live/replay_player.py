@@ -112,7 +112,7 @@ class ReplayPlayer:
                 break
             if isinstance(action, Tick):
                 again = None
-                self.put(self.keys.clock(), encode(Clock(t=action.t)), control)
+                self.put(self.keys.clock(), encode(Clock(t=action.t, sent=self.source.raw_published)), control)
                 self._ticked(action.t)
                 if time.monotonic() - yielded_at >= YIELD_EVERY:
                     await asyncio.sleep(0)  # let signals and progress reports in

@@ -25,22 +25,20 @@ Put = Callable[[str, bytes, bytes | None], None]
 
 class ReplaySource:
     """The source at ``path`` (a ``.mcap`` recording, else a dataset folder); raises
-    FormatError for a bad one (a corrupt recording too, unless ``salvage``), having read every
-    row before anything is published."""
+    FormatError for a bad one (a corrupt recording too, unless ``salvage``): its deployment at
+    once, every row in :meth:`check`, which replay runs before it publishes anything."""
 
     def __init__(self, path: str, filters: Iterable[str], memory_ticks: int, salvage: bool = False):
         path = Path(path)
         if path.suffix == ".mcap":
-            self.recording, self.dataset, self.truth, self.span = open_recording(path, salvage), None, [], None
+            self.recording, self.dataset, self.truth = open_recording(path, salvage), None, []
             self.deployment, self.net = self.recording.deployment, self.recording.net
             self.total = None
         else:
             self.recording, self.dataset = None, open_dataset(path)
             self.deployment = self.dataset.deployment
             self.net = self.deployment.name
-            # validates every row before anything is published
-            self.span = TimeSpan.of(e.t for e in self.dataset.events())
-            self.total = self.span.count
+            self.total = None  # rows, once checked
             # truth.csv, if the dataset has one, is published on `truth` (sorted by t; read and checked now)
             self.truth = sorted(self.dataset.truth(), key=lambda row: row.t) if self.dataset.has_truth else []
         self.filters = [zenoh.KeyExpr(k) for k in filters]
@@ -52,6 +50,21 @@ class ReplaySource:
         self.recent: deque[tuple[float, str, bytes]] = deque()
         self.recent_ticks: deque[float] = deque(maxlen=memory_ticks)
         self.last_tick: float | None = None
+        self._recorded_step: float | None = None  # a recording's largest gap between ticks, s, once checked
+        self.span: TimeSpan | None = None  # a dataset's event times, once checked
+        self.raw_published = 0  # raw samples published (or walked past by a restart), in each clock tick
+
+    def check(self) -> None:
+        """Read every row of a dataset's events, or every tick of a recording (FormatError for a
+        bad one); blocking (a few tenths of a second per hundred thousand rows)."""
+        if self._recorded_step is not None or self.span is not None:
+            return
+        if self.dataset is not None:
+            self.span = TimeSpan.of(e.t for e in self.dataset.events())
+            self.total = self.span.count
+        else:
+            ticks = [t for t, item in replay_items(self.recording) if item is None]
+            self._recorded_step = max((b - a for a, b in zip(ticks, ticks[1:])), default=0.0)
 
     def play_on(self, keys: Keys) -> None:
         self.keys = keys
@@ -59,10 +72,10 @@ class ReplaySource:
     def largest_step(self, period: float, max_gap: float) -> float:
         """The largest gap between two ticks (s): ``period``, or a recording's own if larger, or
         a dataset's longest silence if replay jumps over it (longer than ``max_gap``, s)."""
+        self.check()
         if self.recording is None:  # ticks on the grid, or a jump over a silence longer than max_gap
             return max(period, self.span.silence if self.span.silence > max_gap else 0.0)
-        ticks = [t for t, item in replay_items(self.recording) if item is None]
-        return max([period, *(b - a for a, b in zip(ticks, ticks[1:]))])
+        return max(period, self._recorded_step)
 
     def _keep(self, key: str) -> bool:
         if not self.filters:
@@ -107,6 +120,7 @@ class ReplaySource:
 
     def _remember(self, key: str, payload: bytes) -> None:
         """Keep a raw sample put after the last tick, for ``recent`` and for sending it again."""
+        self.raw_published += 1
         self.recent.append((-math.inf if self.last_tick is None else self.last_tick, key, payload))
 
     def ticked(self, t: float) -> None:

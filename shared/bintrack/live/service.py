@@ -95,6 +95,10 @@ class Service:
     async def on_router_back(self) -> None:
         """A router is back after a loss: fetch what went missing (the token is declared after)."""
 
+    def router_unreachable(self) -> None:
+        """The first attempt to reach the router failed: what to do before waiting for it (in
+        the thread opening the session; an exception ends the service)."""
+
     def listen_key(self) -> str:
         """The key expression of this service's one subscriber: everything its handlers need,
         in one subscriber so that each publisher's samples arrive in the order sent."""
@@ -222,7 +226,8 @@ class Service:
             log.error("%s: %s", self.name, exc)
             return 2
         try:
-            self.session = await asyncio.to_thread(open_session, config, self.args.wait, self.name, self._stop_thread)
+            self.session = await asyncio.to_thread(open_session, config, self.args.wait, self.name, self._stop_thread,
+                                                   self.router_unreachable)
         except ConnectionError as exc:
             log.error("%s", exc)
             return 1

@@ -10,7 +10,7 @@ import logging
 import os
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 import zenoh
 
@@ -101,12 +101,20 @@ def router_config(listen: Iterable[str] = (DEFAULT_ENDPOINT,)) -> zenoh.Config:
     config.insert_json5("listen/endpoints", json.dumps(list(listen)))
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("scouting/gossip/enabled", "false")
+    return no_scouting_wait(config)
+
+
+def no_scouting_wait(config: zenoh.Config) -> zenoh.Config:
+    """``config`` opening at once: a router (or peer) otherwise waits ``scouting/delay`` (0.5 s)
+    for peers to scout before ``zenoh.open`` returns, which without scouting finds none."""
+    config.insert_json5("scouting/delay", "0")
     return config
 
 
 def open_session(config: zenoh.Config, wait: float = 60.0, who: str = "bintrack",
-                 stop: threading.Event | None = None) -> zenoh.Session:
-    """Open a session, retrying while the router is not up yet, with a clear message.
+                 stop: threading.Event | None = None, unreachable: Callable[[], None] | None = None) -> zenoh.Session:
+    """Open a session, retrying while the router is not up yet, with a clear message;
+    ``unreachable()`` is called once, when the first attempt failed, before waiting.
 
     Raises ``ConnectionError`` after ``wait`` seconds (or when ``stop`` is set).
     """
@@ -118,6 +126,8 @@ def open_session(config: zenoh.Config, wait: float = 60.0, who: str = "bintrack"
             return zenoh.open(config)
         except zenoh.ZError as exc:
             reason = str(exc).split(" at ")[0]
+            if attempt == 1 and unreachable is not None:
+                unreachable()
             if time.monotonic() >= deadline or (stop is not None and stop.is_set()):
                 raise ConnectionError(f"{who}: no Zenoh router reachable after {attempt} attempts: {reason}") from None
             if attempt == 1 or attempt % 10 == 0:

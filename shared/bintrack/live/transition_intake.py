@@ -38,6 +38,7 @@ class TransitionConsumer(Service):
         self.driver: TrackerDriver | None = None
         self.intake: GapRepair | None = None
         self.transition_keys: dict[str, str] = {}
+        self.sent = 0  # outputs published (counted by ``emit``), in each progress report
 
     def start_intake(self, deployment: Deployment, tracker: Tracker, upstream: tuple[str, ...] = ("sensor_agent",),
                      network: Deployment | None = None) -> None:
@@ -109,14 +110,15 @@ class TransitionConsumer(Service):
     def report_released(self) -> None:
         """Progress: the last clock tick handled, and the watermark released to."""
         released = self.watermark.released
-        self.report_progress(self.watermark.last_tick, released=released if math.isfinite(released) else RELEASED_NONE)
+        self.report_progress(self.watermark.last_tick, sent=self.sent,
+                             released=released if math.isfinite(released) else RELEASED_NONE)
 
     def advance(self, watermark: float) -> list[Message]:
         """The tracker's outputs up to ``watermark`` (s)."""
         return self.driver.advance(watermark)
 
     def emit(self, outputs: list[Message]) -> None:
-        """Publish the tracker's outputs."""
+        """Publish the tracker's outputs (counting the main ones in ``sent``)."""
         raise NotImplementedError
 
     async def on_router_back(self) -> None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import Protocol, Union
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from bintrack.bus_payloads import (
     LineObjectEstimate,
@@ -59,6 +58,8 @@ class DiskNetwork:
         self.positions = np.array([(s.x, s.y) for s in sensors], dtype=float)
         self.ranges = np.array([s.range for s in sensors], dtype=float)
         self._sensors = sensors
+        from scipy.spatial import cKDTree  # scipy only once a tracker is made (not for the names)
+
         tree = cKDTree(self.positions)
         pairs = tree.query_pairs(r=2.0 * float(self.ranges.max()), output_type="ndarray")
         gap = np.linalg.norm(self.positions[pairs[:, 0]] - self.positions[pairs[:, 1]], axis=1)

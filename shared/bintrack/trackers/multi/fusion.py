@@ -72,6 +72,7 @@ class GridFusion:
         if config.threshold < 1:
             raise TrackerConfigError(f"fusion threshold n_d must be at least 1, got {config.threshold}")
         self.config = config
+        self._made_from = (deployment, config)
         self.shared_speed = config.shared_speed / deployment.metres_per_unit
         """``config.shared_speed`` in the deployment's units per second"""
         self.ids = [s.id for s in sensors]
@@ -140,6 +141,11 @@ class GridFusion:
         if config.soft_spread is not None:
             self.soft = SoftFootprint(positions, ranges * config.soft_spread, pd, pfa)
         self._fit = TargetFit(self)
+
+    def __reduce__(self):
+        """Pickled (a live service's checkpoint) as what it is made from: its tables follow from
+        the deployment and the config, and pickling them took a megabyte and a tenth of a second."""
+        return GridFusion, self._made_from
 
     def depth(self, x: float, y: float) -> float:
         """How far (units) the point (x, y) lies inside the sensor field, the convex hull of the
