@@ -6,6 +6,8 @@ router lets each role declare the tokens of its instances in this run only."""
 
 from __future__ import annotations
 
+import contextlib
+
 import pytest
 import zenoh
 
@@ -19,24 +21,27 @@ from test_faults import Up, exported_tracks, grid_slice, offline_rows  # noqa: F
 FORGED = ("sensor_agent", "replay", "basestation", "recorder")
 
 
-def forge_tokens(up: Up, config: zenoh.Config, net: str, services=FORGED) -> tuple[zenoh.Session, list]:
-    """Once event time reached 4 s: a session of its own declaring ``alive/<service>/evil``."""
+@contextlib.contextmanager
+def forged_tokens(up: Up, config: zenoh.Config, net: str, services=FORGED):
+    """Once event time reached 4 s: a session of its own declaring ``alive/<service>/evil``, held
+    until the block ends."""
     up.event_time_at_least(4.0)
     session = zenoh.open(config)
-    return session, [session.liveliness().declare_token(Keys(net).alive(s, "evil")) for s in services]
+    tokens = [session.liveliness().declare_token(Keys(net).alive(s, "evil")) for s in services]
+    try:
+        yield
+    finally:
+        for token in tokens:
+            token.undeclare()
+        session.close()
 
 
 def test_a_token_forged_on_an_open_bus_is_logged_and_ignored(grid_slice, offline_rows, tmp_path):
     recording = tmp_path / "run.mcap"
     up = Up(str(grid_slice), "--tracker", "mcmcda", "--speed", "0", "--clock-period", "0.05", "--record",
             str(recording), "--exit-at-end")
-    session, tokens = forge_tokens(up, client_config([up.endpoint]), "darpa-grid")
-    try:
+    with forged_tokens(up, client_config([up.endpoint]), "darpa-grid"):
         assert up.finish() == 0, up.log[-4000:]
-    finally:
-        for token in tokens:
-            token.undeclare()
-        session.close()
     assert exported_tracks(recording, tmp_path) == offline_rows("mcmcda"), up.log[-4000:]
     assert "up: without --secure the bus on tcp/" in up.log
     for service in FORGED:
@@ -58,13 +63,8 @@ def test_a_token_forged_with_the_sensor_agent_certificate_is_refused_by_the_rout
     up = Up(str(grid_slice), "--tracker", "mcmcda", "--speed", "0", "--clock-period", "0.05", "--record",
             str(recording), "--exit-at-end", "--secure", "--certs", str(certs), scheme="tls")
     config = secure_client_config("sensor_agent", certs, [up.endpoint])
-    session, tokens = forge_tokens(up, config, "darpa-grid", ("sensor_agent",))
-    try:
+    with forged_tokens(up, config, "darpa-grid", ("sensor_agent",)):
         assert up.finish() == 0, up.log[-4000:]
-    finally:
-        for token in tokens:
-            token.undeclare()
-        session.close()
     assert exported_tracks(recording, tmp_path) == offline_rows("mcmcda"), up.log[-4000:]
     assert "without --secure" not in up.log
     assert "ignoring" not in up.log, up.log[-4000:]  # denied at the router: nobody saw it
