@@ -18,22 +18,13 @@ from pathlib import Path
 
 import pytest
 
-from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
-
-from support import DATASETS, bintrack
-from test_faults import Up, exported_tracks
+from support import DATASETS
+from test_faults import Up, cut, exported_tracks, offline_tracks
 
 MCMCDA = ("sensor_agent", "basestation", "recorder", "replay")
 LOST = re.compile(r"lost (\d+) track rows")
 SPAN = 40.0  # s of darpa-grid-3: three people, 113 mcmcda rows
 FINE = ("--clock-period", "0.1")  # at --speed 0, ticks that pace the slice over seconds (a kill lands mid-run)
-
-
-def cut(source: Path, out: Path, span: float) -> Path:
-    """The first ``span`` s of dataset ``source``, written to ``out``."""
-    ds = open_dataset(source)
-    return write_dataset(out, ds.deployment, [e for e in ds.events() if e.t < span],
-                         [TruthRow(*r) for r in ds.truth() if r.t < span])
 
 
 @pytest.fixture(scope="module")
@@ -43,17 +34,7 @@ def field(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def offline(field, tmp_path_factory):
-    """tracks.csv rows of `bintrack track` per tracker (each computed once)."""
-    cache: dict[str, list] = {}
-
-    def rows(tracker: str) -> list:
-        if tracker not in cache:
-            out = tmp_path_factory.mktemp("offline") / f"{tracker}.csv"
-            bintrack("track", str(field), "--tracker", tracker, "--out", str(out), check=True)
-            cache[tracker] = read_tracks(out)
-        return cache[tracker]
-
-    return rows
+    return offline_tracks(field, tmp_path_factory)
 
 
 def kill_together(up: Up, victims: tuple[str, ...], at: float, pid_of=None) -> None:

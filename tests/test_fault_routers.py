@@ -14,8 +14,8 @@ import pytest
 from bintrack.formats import read_tracks
 
 from support import bintrack
-from test_fault_pairs import FINE, check_rows, cut, kill_time, kill_together
-from test_faults import Up, children, exported_tracks
+from test_fault_pairs import FINE, check_rows, kill_time, kill_together
+from test_faults import Up, children, cut, exported_tracks
 
 SEED = 21  # a simulated field cut into two regions; not a seed the merge's defaults were chosen on
 

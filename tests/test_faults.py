@@ -34,29 +34,37 @@ from support import DATASETS, HUNG, REPO, bintrack, free_port, rss_kb, wait_logg
 DARPA3 = DATASETS / "darpa-grid-3"
 
 
-@pytest.fixture(scope="module")
-def grid_slice(tmp_path_factory) -> Path:
-    """The first 20 s of darpa-grid-3: three people, enough transitions for identities to matter."""
-    ds = open_dataset(DARPA3)
-    events = [e for e in ds.events() if e.t < 20.0]
-    truth = [TruthRow(*r) for r in ds.truth() if r.t < 20.0]
-    return write_dataset(tmp_path_factory.mktemp("slice") / "darpa-grid-3", ds.deployment, events, truth)
+def cut(source: Path, out: Path, span: float) -> Path:
+    """The first ``span`` s of dataset ``source``, written to ``out``."""
+    ds = open_dataset(source)
+    return write_dataset(out, ds.deployment, [e for e in ds.events() if e.t < span],
+                         [TruthRow(*r) for r in ds.truth() if r.t < span])
 
 
-@pytest.fixture(scope="module")
-def offline_rows(grid_slice, tmp_path_factory):
-    """tracks.csv rows of `bintrack track` per tracker (computed once)."""
+def offline_tracks(dataset: Path, tmp_path_factory):
+    """tracks.csv rows of `bintrack track` on ``dataset``, per tracker (each computed once)."""
     cache: dict[str, list] = {}
 
     def rows(tracker: str) -> list:
         if tracker not in cache:
             out = tmp_path_factory.mktemp("offline") / f"{tracker}.csv"
-            result = bintrack("track", str(grid_slice), "--tracker", tracker, "--out", str(out))
+            result = bintrack("track", str(dataset), "--tracker", tracker, "--out", str(out))
             assert result.returncode == 0, result.stderr
             cache[tracker] = read_tracks(out)
         return cache[tracker]
 
     return rows
+
+
+@pytest.fixture(scope="module")
+def grid_slice(tmp_path_factory) -> Path:
+    """The first 20 s of darpa-grid-3: three people, enough transitions for identities to matter."""
+    return cut(DARPA3, tmp_path_factory.mktemp("slice") / "darpa-grid-3", 20.0)
+
+
+@pytest.fixture(scope="module")
+def offline_rows(grid_slice, tmp_path_factory):
+    return offline_tracks(grid_slice, tmp_path_factory)
 
 
 def children(pid: int) -> dict[int, str]:
