@@ -50,7 +50,7 @@ from bintrack.bus_payloads import (
 from bintrack.deployment_model import Deployment
 from bintrack.message_base import Message
 from bintrack.message_codec import MessageError, decode
-from bintrack.live.recording_check import MCAP_MAGIC, Damage, checked_scan, skipped_by_statistics
+from bintrack.live.recording_check import MCAP_MAGIC, Damage, checked_scan, count_mismatch, skipped_by_statistics
 
 RECORDING_FORMAT = "bintrack.recording/1"
 RECORDING_METADATA = "bintrack.recording"
@@ -153,7 +153,9 @@ class RecordingWriter:
         # No per-channel message indexes: the writer keeps each chunk's index in memory until the
         # file is finalised, ~19 kB per chunk with them (a recorder flushing every 5 s grew without
         # bound), 0.4 kB without. Readers seek by chunk index and read the chunk, as they may.
-        self._writer = Writer(self._handle, chunk_size=chunk_size,
+        # The data section's CRC as well as each chunk's: a zeroed range that also zeroes a
+        # chunk's CRC (0 means "none") would otherwise drop the chunk unseen.
+        self._writer = Writer(self._handle, chunk_size=chunk_size, enable_data_crcs=True,
                               index_types=IndexType.CHUNK | IndexType.ATTACHMENT | IndexType.METADATA)
         self._writer.start(profile="", library=f"bintrack {__version__}")
         self._writer.add_metadata(RECORDING_METADATA, {"format": RECORDING_FORMAT, "net": net})
@@ -347,8 +349,11 @@ def open_recording(path: Path | str, salvage: bool = False) -> Recording:
         scan = checked_scan(handle, keep_messages=False)
         summary = _summary(handle)
         damage = scan.damage
-        if damage is not None and summary is not None and summary.statistics is not None:
-            damage = skipped_by_statistics(damage, scan.count, summary.statistics.message_count)
+        total = summary.statistics.message_count if summary is not None and summary.statistics is not None else None
+        if damage is not None:
+            damage = skipped_by_statistics(damage, scan.count, total)
+        else:
+            damage = count_mismatch(scan.count, total)
         if damage is not None and not damage.torn and (not salvage or not scan.attachments):
             hint = "; --salvage reads the sound chunks" if scan.attachments else ""
             raise FormatError(path, None, "mcap", f"corrupt recording: {damage.describe(scan.count)}{hint}")

@@ -25,11 +25,11 @@ MAX_CHUNK = 256 * 2**20  # bytes: a chunk claiming more once decompressed is dam
 
 @dataclass(frozen=True)
 class Damage:
-    """The first damage found: its byte ``offset``, the chunk (numbered from 1 in file order,
+    """The first damage found: its byte ``offset`` (None when no one place is known), the chunk (numbered from 1 in file order,
     None outside chunks), why, how many chunks failed, how many messages were lost (None when
     the rest of the file is unreadable) and whether the file is merely torn (cut short)."""
 
-    offset: int
+    offset: int | None
     chunk: int | None
     reason: str
     bad_chunks: int
@@ -41,7 +41,12 @@ class Damage:
         if self.torn:
             return (f"the file ends inside a record at byte {self.offset} (never finalised, or cut short): "
                     f"{read} records read before it, whatever followed is lost")
-        where = f"chunk {self.chunk} at byte {self.offset}" if self.chunk is not None else f"byte {self.offset}"
+        if self.offset is None:
+            where = "the data section"
+        elif self.chunk is not None:
+            where = f"chunk {self.chunk} at byte {self.offset}"
+        else:
+            where = f"byte {self.offset}"
         if self.skipped is None:
             lost = "the rest of the file is unreadable"
         else:
@@ -132,7 +137,7 @@ def checked_scan(handle: IO[bytes], keep_messages: bool) -> CheckedScan:
     except Exception as exc:  # a broken record between chunks, the data section's CRC, a torn end
         if isinstance(exc, CRCValidationError) and isinstance(exc.record, DataEnd):
             scan.finalised = True
-            first = first or (start, None, "the data section's CRC does not match (damage outside the chunks)")
+            first = first or (None, None, "its CRC does not match: a record changed without failing a check of its own")
         else:
             torn = torn_file and isinstance(exc, (EndOfFile, struct.error)) and first is None
             first = first or (start, None, _reason(exc))
@@ -160,6 +165,16 @@ def skipped_by_statistics(damage: Damage, read: int, total: int | None) -> Damag
     if total is None or total < read or damage.torn:
         return damage
     return replace(damage, skipped=total - read)
+
+
+def count_mismatch(read: int, total: int | None) -> Damage | None:
+    """Damage when the file's statistics (``total`` messages, None when the summary does not
+    read) disagree with the ``read`` messages that every check passed: a chunk lost without a
+    failing check, as when a zeroed range also zeroes its CRC (0 means none). None if they agree."""
+    if total is None or total == read:
+        return None
+    reason = f"its statistics count {total} messages, its chunks hold {read}"
+    return Damage(None, None, reason, 0, max(total - read, 0), False)
 
 
 def _take(scan: CheckedScan, channels: dict[int, Channel], message: Message, keep: bool) -> int:
