@@ -1,7 +1,7 @@
 """Faults in pairs, the fault matrix: every pair of the mcmcda stack's services SIGKILLed at once
-mid-run under ``bintrack up`` at ``--speed 0`` (each at a seed of its own) and two pairs at
-``--speed 2``; the peers' stack in tests/test_fault_peers.py, each router of ``--regions 2`` in
-tests/test_fault_routers.py.
+mid-run under ``bintrack up``, at ``--speed 0`` (two seeds each) and ``--speed 2`` (a third);
+the peers' stack in tests/test_fault_peers.py, each router of ``--regions 2`` (at both speeds)
+in tests/test_fault_routers.py.
 A restarted service fetches what it missed only once the peer it fetches from has caught up, so
 each run ends with the offline track rows, or with log lines naming every row it lost (their
 count is held to the difference); the recording never holds a track row twice. A seed picks
@@ -77,9 +77,10 @@ def run_with_a_kill(field: Path, tmp_path: Path, tracker: str, speed: float, vic
     return up, exported_tracks(recording, tmp_path)
 
 
-# each pair once, a seed of its own (where the kill lands); the suite's budget allows no more
-MCMCDA_PAIRS = [pytest.param(pair, seed, id="+".join(pair))
-                for seed, pair in enumerate(itertools.combinations(MCMCDA, 2), start=1)]
+# every pair at two seeds of its own at --speed 0 (where the kill lands), and at a third at --speed 2
+PAIRS = list(itertools.combinations(MCMCDA, 2))
+MCMCDA_PAIRS = [pytest.param(pair, seed, id=f"{'+'.join(pair)}-seed{seed}")
+                for n, pair in enumerate(PAIRS) for seed in (n + 1, n + 1 + len(PAIRS))]
 
 
 @pytest.mark.parametrize("victims, seed", MCMCDA_PAIRS)
@@ -88,7 +89,8 @@ def test_mcmcda_pairs_killed_together(field, offline, victims, seed, tmp_path):
     check_rows(up, live, offline("mcmcda"))
 
 
-@pytest.mark.parametrize("victims", [("sensor_agent", "basestation"), ("basestation", "recorder")], ids="+".join)
-def test_mcmcda_pairs_killed_together_at_speed_2(field, offline, victims, tmp_path):
-    up, live = run_with_a_kill(field, tmp_path, "mcmcda", 2, victims, kill_time(7, 12.0, 20.0))
+@pytest.mark.parametrize("victims, seed", [pytest.param(pair, n + 1 + 2 * len(PAIRS), id="+".join(pair))
+                                           for n, pair in enumerate(PAIRS)])
+def test_mcmcda_pairs_killed_together_at_speed_2(field, offline, victims, seed, tmp_path):
+    up, live = run_with_a_kill(field, tmp_path, "mcmcda", 2, victims, kill_time(seed, 12.0, 20.0))
     check_rows(up, live, offline("mcmcda"))

@@ -31,7 +31,8 @@ def regions_field(tmp_path_factory) -> tuple[Path, list]:
 
 
 @pytest.mark.parametrize("victims, speed", [pytest.param(v, speed, id=f"{'+'.join(v)}-speed{speed}") for v, speed in (
-    (("router-r0c0",), 0), (("router-r0c1",), 0), (("router-r0c1",), 2), (("merge", "recorder"), 0))])
+    (("router-r0c0",), 0), (("router-r0c0",), 2), (("router-r0c1",), 0), (("router-r0c1",), 2),
+    (("merge", "recorder"), 0), (("merge", "recorder"), 2))])
 def test_a_region_router_or_the_merge_and_recorder_killed(regions_field, victims, speed, tmp_path):
     field, offline = regions_field
     recording = tmp_path / "run.mcap"
