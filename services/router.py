@@ -5,6 +5,8 @@ in router mode (the ``zenohd`` binary is not on the package registries; in Docke
 ``eclipse/zenoh`` image plays this part). It listens on ``-l``, connects to the other routers of
 the mesh with ``-e`` (Zenoh retries a router that is not up yet, and again after it went), and
 logs each router, peer or client that connects or leaves. Ends cleanly on SIGTERM or SIGINT.
+With ``RUST_LOG`` set, Zenoh's own log goes to stdout: ``RUST_LOG=zenoh::net::routing::interceptor::
+access_control=trace`` shows each message the access control denies (and each it lets pass).
 """
 
 from __future__ import annotations
@@ -101,6 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)
+    zenoh.try_init_log_from_env()  # RUST_LOG: Zenoh's own log on stdout (access control's denials at trace)
     return run(args)
 
 

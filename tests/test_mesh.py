@@ -4,6 +4,8 @@ connecting and leaving."""
 
 from __future__ import annotations
 
+import json
+import os
 import signal
 import subprocess
 import sys
@@ -21,7 +23,7 @@ class RouterProcess:
     """A router of the mesh in a process of its own; its log in a file."""
 
     def __init__(self, name: str, listen: str, connect: list[str], log_dir: Path, config: str | None = None,
-                 argv: list[str] | None = None):
+                 argv: list[str] | None = None, env: dict[str, str] | None = None):
         """``argv``: the router's whole command line (e.g. as ``bintrack up`` builds it) instead
         of one made of ``listen``, ``connect`` and ``config``."""
         self.name, self.listen = name, listen
@@ -33,7 +35,8 @@ class RouterProcess:
                 argv += ["-c", config]
             for peer in connect:
                 argv += ["-e", peer]
-        self.proc = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT, cwd=REPO)
+        self.proc = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT, cwd=REPO,
+                                     env=None if env is None else {**os.environ, **env})
         self.wait_logged("listening on", "start")
 
     @property
@@ -137,3 +140,29 @@ def test_a_router_without_listen_endpoint_is_refused(tmp_path):
     result = python_module("bintrack.services.router")
     assert result.returncode == 2
     assert "give at least one -l/--listen endpoint" in result.stderr
+
+
+ACL = {"enabled": True, "default_permission": "deny",
+       "rules": [{"id": "demo", "messages": ["put", "declare_subscriber"], "flows": ["ingress", "egress"],
+                  "permission": "allow", "key_exprs": ["demo/**"]}],
+       "subjects": [{"id": "loopback", "interfaces": ["lo"]}],
+       "policies": [{"rules": ["demo"], "subjects": ["loopback"]}]}
+
+
+def test_with_rust_log_the_router_names_each_put_its_access_control_denies(tmp_path):
+    """Zenoh 1.x reports a denial only in its own log, at trace level: the router passes
+    RUST_LOG on, so an operator can see what the access control drops (docs/secure.md)."""
+    listen = f"tcp/127.0.0.1:{free_port()}"
+    router = RouterProcess("acl", listen, [], tmp_path, argv=[
+        sys.executable, "-m", "bintrack.services.router", "-l", listen, "--name", "acl",
+        "--cfg", f"access_control:{json.dumps(ACL)}"],
+        env={"RUST_LOG": "error,zenoh::net::routing::interceptor::access_control=trace"})
+    client = zenoh.open(client_config([listen]))
+    try:
+        client.put("demo/allowed", b"1")
+        client.put("other/denied", b"2")
+        router.wait_logged("unauthorized to Put (ingress) on other/denied", "the denied put in the router's log")
+    finally:
+        client.close()
+        router.stop()
+    assert "unauthorized to Put (ingress) on demo/allowed" not in router.log

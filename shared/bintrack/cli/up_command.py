@@ -475,6 +475,7 @@ def run(args: argparse.Namespace) -> int:
     stack_id = f"up{os.getpid()}"
     # under --secure each role may declare the tokens of its own instances in this run only
     pinned = pin_run_tokens(config, commands, net, stack_id) if args.secure else ()
+    zenoh.try_init_log_from_env()  # as the router service does (see services/router.py)
     try:
         router = zenoh.open(config)
     except zenoh.ZError as exc:
