@@ -20,6 +20,7 @@ import threading
 
 import zenoh
 
+from bintrack.keys import Keys
 from bintrack.live.parent_watch import PARENT_ENV
 from bintrack.live.service import configure_logging, log
 from bintrack.live.session_options import no_scouting_wait, zenoh_config
@@ -41,6 +42,22 @@ def mesh_config(args: argparse.Namespace) -> zenoh.Config:
     return config
 
 
+def pinned_tokens(spec: str) -> tuple[str, dict[str, list[str]]]:
+    """``NET:SERVICE[=ID],…`` (an instance id defaults to its service's name, as in the compose
+    files) as (net, the liveliness token keys of each role); ValueError if malformed."""
+    net, colon, instances = spec.partition(":")
+    if not colon or not instances:
+        raise ValueError(f"--pin-tokens takes NET:SERVICE[=ID],…, got {spec!r}")
+    from bintrack.live.secure_profile import role_of  # the secure profile only: its imports take 0.8 s
+
+    keys = Keys(net)
+    tokens: dict[str, list[str]] = {}
+    for item in instances.split(","):
+        service, _, instance = item.partition("=")
+        tokens.setdefault(role_of(service), []).append(keys.alive(service, instance or service))
+    return net, tokens
+
+
 def describe(transport) -> str:
     return f"{str(transport.whatami).lower()} {str(transport.zid)[:8]}"
 
@@ -51,6 +68,12 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         config = mesh_config(args)
+        if args.pin_tokens:
+            if not config.get_json("access_control/enabled") == "true":
+                raise ValueError("--pin-tokens needs a config with access control (the secure profile's router.json5)")
+            from bintrack.live.secure_profile import pin_tokens
+
+            pin_tokens(config, pinned_tokens(args.pin_tokens)[1])
     except ValueError as exc:
         log.error("router: %s", exc)
         return 2
@@ -95,6 +118,10 @@ def build_parser() -> argparse.ArgumentParser:
     group.add_argument("-c", "--config", metavar="FILE", help="Zenoh configuration file (JSON5); default: $ZENOH_CONFIG")
     group.add_argument("--cfg", action="append", default=[], metavar="KEY:VALUE",
                        help="set a configuration key to a JSON5 value")
+    parser.add_argument("--pin-tokens", metavar="NET:SERVICE[=ID],…",
+                        help="with the secure profile: each role may declare the liveliness tokens of these instances "
+                        "only (ID defaults to the service's name), so that no holder of a role's certificate can "
+                        "pose as another instance of it")
     parser.add_argument("--name", default="router", help="name in the log lines (default: %(default)s)")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return parser

@@ -19,14 +19,15 @@ from cryptography import x509
 from bintrack.cli import certs_command
 from bintrack.cli import main as cli
 from bintrack.formats import TruthRow, open_dataset, read_tracks, write_dataset
+from bintrack.keys import Keys
 from bintrack.live.session_options import client_config as plain_client_config
 from bintrack.live.secure_profile import (PROFILE, awaiting_token_holders, client_config, restrict_sensor_agents,
-                                          role_of, router_config, secure_commands)
+                                          role_of, router_config, router_options, secure_commands)
 from bintrack.live.stack import region_stack_commands
 from bintrack.bus_payloads import Clock, Track, TrackSet
 from bintrack.message_codec import encode
 
-from support import DATASETS, HUNG, REPO, bintrack, free_port
+from support import DATASETS, HUNG, REPO, bintrack, free_port, wait_until
 from test_mesh import RouterProcess
 
 DARPA3 = DATASETS / "darpa-grid-3"
@@ -215,7 +216,11 @@ def test_the_compose_override_runs_every_service_of_the_base_file_under_its_role
     base = yaml.safe_load((REPO / "docker-compose.yml").read_text())["services"]
     secure = yaml.safe_load((REPO / "docker-compose.secure.yml").read_text())["services"]
     assert set(secure) == set(base)
-    assert secure["router"]["command"] == ["bintrack.services.router", "-c", "/secure/router.json5", "-l", "tls/[::]:7447"]
+    # each role may declare the tokens of the instances the base file runs, no other
+    instances = [f"{name}={s['command'][s['command'].index('--id') + 1]}" for name, s in base.items()
+                 if "--id" in s["command"]]
+    assert secure["router"]["command"] == ["bintrack.services.router", "-c", "/secure/router.json5", "-l", "tls/[::]:7447",
+                                           "--pin-tokens", f"darpa-grid:{','.join(instances)}"]
     for name, service in secure.items():
         assert {"./deploy/secure:/secure:ro", "./certs:/certs:ro"} <= set(service["volumes"]), name
         if name == "router":
@@ -398,3 +403,30 @@ def test_up_secure_with_regions_needs_a_router_certificate_that_names_the_region
                      "--listen", "tls/127.0.0.1:1"]) == 2
     err = capsys.readouterr().err
     assert "router.pem does not name 127.0.0.2" in err and "--roles router --ca" in err
+
+
+def test_a_router_given_pin_tokens_lets_a_role_declare_only_the_instances_named(certs, tmp_path):
+    """``--pin-tokens`` (the compose secure profile's router): with the sensor-agent certificate,
+    the token of instance ``sensor_agent`` is declared and one of ``evil`` is denied."""
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    router = RouterProcess("pinned", endpoint, [], tmp_path, argv=[
+        sys.executable, "-m", "bintrack.services.router", "-l", endpoint, "--name", "pinned",
+        *router_options(certs), "--pin-tokens", "darpa-grid:sensor_agent,replay"])
+    agent = zenoh.open(client_config("sensor_agent", certs, [endpoint]))
+    reader = zenoh.open(client_config("recorder", certs, [endpoint]))
+    keys = Keys("darpa-grid")
+    try:
+        forged = agent.liveliness().declare_token(keys.alive("sensor_agent", "evil"))
+        genuine = agent.liveliness().declare_token(keys.alive("sensor_agent", "sensor_agent"))
+
+        def alive() -> set[str]:
+            return {str(r.ok.key_expr) for r in reader.liveliness().get(keys.alive(), timeout=5) if r.ok}
+
+        wait_until(lambda: keys.alive("sensor_agent", "sensor_agent") in alive(), "the genuine token")
+        assert keys.alive("sensor_agent", "evil") not in alive()
+        forged.undeclare()
+        genuine.undeclare()
+    finally:
+        agent.close()
+        reader.close()
+        assert router.stop() == 0
