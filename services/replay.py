@@ -30,8 +30,7 @@ from bintrack.live.control_guard import control_attachment
 from bintrack.live.replay_gate import ReplayGate
 from bintrack.live.checkpoint import ReplayCheckpoint
 from bintrack.live.replay_player import ReplayPlayer
-from bintrack.live.replay_schedule import (MAX_GAP, TICK_AT_FULL_SPEED, TICK_FASTEST, TICK_WALL, default_clock_period,
-                                           schedule)
+from bintrack.live.replay_schedule import MAX_GAP, TICK_FASTEST, TICK_WALL, default_clock_period, schedule
 from bintrack.live.replay_source import ReplaySource
 from bintrack.live.service import Service, service_main
 from bintrack.live.session_options import add_bus_arguments
@@ -57,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="play again after the end, shifted in event time so that it keeps increasing")
     parser.add_argument("--clock-period", type=positive_float, default=None, metavar="S",
                         help=f"event time between clock ticks, s (default: {TICK_WALL:g} s of wall clock at --speed, "
-                        f"from {TICK_WALL:g} to {TICK_FASTEST:g} s of event time; {TICK_AT_FULL_SPEED:g} at --speed 0)")
+                        f"from {TICK_WALL:g} to {TICK_FASTEST:g} s of event time; {TICK_FASTEST:g} at --speed 0)")
     parser.add_argument("--max-ahead", type=int_at_least(1), default=16, metavar="N",
                         help="clock ticks that may be unacknowledged by the slowest service (default: %(default)s)")
     parser.add_argument("--wait-for", action="append", default=[], metavar="SERVICE[,SERVICE…]",

@@ -62,7 +62,7 @@ def test_default_clock_period_is_50_ms_of_wall_clock_within_bounds():
     assert default_clock_period(0.25) == pytest.approx(0.05)  # never finer than 0.05 s of event time
     assert default_clock_period(4.0) == pytest.approx(0.2)
     assert default_clock_period(100.0) == pytest.approx(0.5)  # never coarser than a PIR scan
-    assert default_clock_period(0.0) == pytest.approx(2.0)  # as fast as flow control allows: four scans a tick
+    assert default_clock_period(0.0) == pytest.approx(0.5)  # as fast as flow control allows
     for bad in (-1.0, math.inf, math.nan):
         with pytest.raises(ValueError, match="speed"):
             default_clock_period(bad)

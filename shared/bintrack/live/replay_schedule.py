@@ -79,24 +79,23 @@ through it (the trackers treat a silence this long as empty time, ``MAX_SILENCE`
 TICK_WALL = 0.05
 """s of wall clock between ticks by default: a live estimate waits at most about this long"""
 TICK_FASTEST = 0.5
-"""s of event time between ticks at most by default at a speed above 0 (one PIR scan)"""
-TICK_AT_FULL_SPEED = 2.0
-"""s of event time between ticks by default at ``--speed 0`` (four PIR scans)"""
+"""s of event time between ticks by default at ``--speed 0``, and the most at any speed"""
 
 
 def default_clock_period(speed: float) -> float:
     """The default event time between clock ticks (s) at ``speed`` × real time: a tick every
     TICK_WALL s of wall clock, but never less than TICK_WALL nor more than TICK_FASTEST s of
-    event time apart; TICK_AT_FULL_SPEED at speed 0 (as fast as flow control allows).
+    event time apart; TICK_FASTEST at speed 0 (as fast as flow control allows).
 
-    A tick is a flow-control round trip through every service, and a checkpoint of replay and
-    of each sensor agent. Results do not depend on the period (trackers run in event time);
-    latency at speed 0 has no meaning. At speed 0, 2 s ticks rather than 0.5 s (a PIR scan)
-    took 17 % of the CPU time off ``bintrack up --speed 0 --record`` (docs/perf.md)."""
+    A tick is a flow-control round trip through every service, and at speed 0 the 0.05 s grid
+    cost more than the samples (1.7 samples per tick on a 40-person grid). Results do not
+    depend on the period (trackers run in event time); latency at speed 0 has no meaning. 0.5 s
+    is the scan period of the PIR grids (paper 004): coarser ticks only batch whole scans, and
+    gave little more in ``benchmarks/bus.py``."""
     if not (speed >= 0 and math.isfinite(speed)):
         raise ValueError(f"speed must be a finite number >= 0, got {speed!r}")
     if speed == 0:
-        return TICK_AT_FULL_SPEED
+        return TICK_FASTEST
     return min(max(TICK_WALL * speed, TICK_WALL), TICK_FASTEST)
 
 
