@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
-import os
 import time
 from pathlib import Path
 
@@ -32,7 +31,7 @@ from bintrack.argtypes import positive_float, size_bytes
 from bintrack.errors import CommandError
 from bintrack.keys import ParsedKey
 from bintrack.live.checkpoint import RecorderCheckpoint
-from bintrack.live.disk_full import MODES, RETRY, DiskFull
+from bintrack.live.disk_full import MODES, DiskFull
 from bintrack.live.end_of_stream import UpstreamDone
 from bintrack.live.record_filter import RESULTS, RecordFilter
 from bintrack.live.recording_files import RecordingFiles
@@ -110,19 +109,15 @@ class Recorder(Service):
                                             checkpoint.part if checkpoint is not None else 0,
                                             self.args.split_size, self.args.split_duration,
                                             on_finalised=write_foxglove_copy if self.args.foxglove else None)
-        restarted = checkpoint is not None and Path(files.path).exists()
-        if restarted:  # keep what the previous instance recorded: it is copied into the new file
-            aside = Path(files.path + ".interrupted")
-            os.replace(files.path, aside)
         try:
-            files.open()
+            aside = files.open(resume=checkpoint is not None)  # keep what the previous instance recorded
         except OSError as exc:
             log.error("recorder: cannot write %s: %s", files.path, exc.strerror or exc)
             self.exit_status = 2
             self.stop()
             return
         self.checkpoints.save(RecorderCheckpoint(files.part))
-        if restarted:
+        if aside is not None:
             kept, last_t, self.last_tracks = files.copy_from(aside, self._copied)
             self.filter.last_t = max(self.filter.last_t, last_t)
             aside.unlink()
@@ -198,13 +193,13 @@ class Recorder(Service):
         self.stop()
 
     async def _retry_while_paused(self) -> None:
-        """While paused (--on-disk-full pause): write what is held, every RETRY s, until it goes."""
-        while self.disk.paused and not self.stopping.is_set():
-            try:
-                await asyncio.wait_for(self.stopping.wait(), RETRY)
-            except TimeoutError:
-                if self.disk.attempt(self.files.writer, self.files.writer.flush) and self.last_tick is not None:
-                    self.report_progress(self.last_tick)
+        """While paused (--on-disk-full pause): write what is held until it goes; then the
+        progress owed."""
+        await self.disk.retry_while_paused(self.files.writer, self.stopping, self._progress_owed)
+
+    def _progress_owed(self) -> None:
+        if self.last_tick is not None:
+            self.report_progress(self.last_tick)
 
     def stop(self) -> None:
         super().stop()

@@ -12,6 +12,7 @@ file as ``stop`` does.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import time
 from collections.abc import Callable
@@ -63,6 +64,17 @@ class DiskFull:
                      time.monotonic() - self.paused_since)
             self.paused_since = None
         return True
+
+    async def retry_while_paused(self, writer: RecordingWriter, stopping: asyncio.Event,
+                                 written: Callable[[], None]) -> None:
+        """While paused: flush ``writer`` every RETRY s (calling ``written()`` once it went)
+        until it goes or ``stopping`` is set."""
+        while self.paused and not stopping.is_set():
+            try:
+                await asyncio.wait_for(stopping.wait(), RETRY)
+            except TimeoutError:
+                if self.attempt(writer, writer.flush):
+                    written()
 
     def end(self, writer: RecordingWriter, exc: OSError) -> None:
         """Finalise ``writer``'s file as well as the disk allows, say so in one line, give up."""

@@ -4,6 +4,7 @@ flushed now and then so that a kill loses little, and finalised at the end."""
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -42,11 +43,17 @@ class RecordingFiles:
         self.flushed_at, self.flushed_t = time.monotonic(), None
         self.on_finalised = on_finalised  # called with each file's path once it is finalised
 
-    def open(self) -> None:
+    def open(self, resume: bool = False) -> Path | None:
         """Start the current part's file (raises OSError); the header and the deployment are on
-        disk whatever happens next."""
+        disk whatever happens next. With ``resume`` (a restarted recorder), a file already there
+        is first set aside: its path is returned, for :meth:`copy_from` and then removal."""
+        aside = None
+        if resume and os.path.exists(self.path):
+            aside = Path(self.path + ".interrupted")
+            os.replace(self.path, aside)
         self.writer = RecordingWriter(self.path, self.deployment, self.net, chunk_size=CHUNK_SIZE, reserve=None)
         self.writer.flush()
+        return aside
 
     def copy_from(self, path: Path, copied: Callable | None = None) -> tuple[int, float, float]:
         """Copy the readable records of an interrupted recording into the current file (telling
