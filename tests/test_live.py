@@ -93,6 +93,24 @@ def test_live_equals_offline_for_mcmcda_on_darpa_grid_3(tmp_path):
     live_and_offline(DARPA3, "mcmcda", tmp_path, exports=("tracks",))
 
 
+def test_up_of_a_recording_tracks_its_raw_samples_again_and_records_each_row_once(tmp_path):
+    """`up RUN.mcap` replays the recording's raw samples (and truth), not its transitions and
+    track sets, which the stack makes again: the offline rows, none twice, no duplicate dropped."""
+    first = tmp_path / "first.mcap"
+    live_and_offline(DARPA3, "mcmcda", tmp_path, exports=())
+    (tmp_path / "mcmcda.mcap").rename(first)
+    again = tmp_path / "again.mcap"
+    up = bintrack("up", str(first), "--speed", "0", "--tracker", "mcmcda", "--record", str(again), "--exit-at-end",
+                  "--listen", f"tcp/127.0.0.1:{free_port()}", "--no-view")
+    assert up.returncode == 0, up.stderr[-3000:]
+    assert "duplicate" not in up.stderr, up.stderr[-3000:]
+    for name in ("first", "again"):
+        assert cli.main(["export", str(tmp_path / f"{name}.mcap"), "--what", "tracks",
+                         "--out", str(tmp_path / f"{name}.csv")]) == 0
+    assert read_tracks(tmp_path / "again.csv") == read_tracks(tmp_path / "mcmcda-offline.csv")
+    assert read_tracks(tmp_path / "first.csv") == read_tracks(tmp_path / "mcmcda-offline.csv")
+
+
 def test_live_equals_offline_for_mcmcda_fed_by_arc_estimates(uniform_dataset, tmp_path):
     live_and_offline(uniform_dataset, "mcmcda", tmp_path, exports=("tracks",),
                      options=("--estimates", "arc", "--seed", "3"))

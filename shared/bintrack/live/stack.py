@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from bintrack.keys import Keys
 from bintrack.trackers import runs_on_peers
 from bintrack.view.map_access import is_loopback
 
@@ -68,7 +69,7 @@ def stack_commands(*, tracker: str, endpoint: str, net: str, source: str | None 
         waits = ("--wait-for", ",".join(s.name for s in services))
         services.append(ServiceCommand("mqtt_bridge", (source, *bridge_args, *period, *waits, *bus)))
     elif source is not None:
-        replay = [*_replay_pace(source, speed, loop, clock_period), "--wait-for", ",".join(s.name for s in services)]
+        replay = [*_replay_pace(source, net, speed, loop, clock_period), "--wait-for", ",".join(s.name for s in services)]
         services.append(ServiceCommand("replay", (*replay, *bus)))
     if state_dir is not None:
         services = [s if s.name in STATELESS else ServiceCommand(s.name, (*s.args, "--id", s.name, "--state-dir", state_dir))
@@ -84,10 +85,13 @@ def is_broker(source: str) -> bool:
     return source.startswith(("mqtt://", "mqtts://"))
 
 
-def _replay_pace(source: str, speed: float, loop: bool, clock_period: float | None) -> list[str]:
-    """Replay's source and pacing options."""
+def _replay_pace(source: str, net: str, speed: float, loop: bool, clock_period: float | None) -> list[str]:
+    """Replay's source and pacing options. Of a recording (``.mcap``, on network ``net``), the
+    raw samples and the truth only: the stack makes the rest again, which the recording's own
+    transitions and track sets would otherwise double."""
     period = [] if clock_period is None else ["--clock-period", _number(clock_period)]
-    return [source, "--speed", _number(speed), *period, *(["--loop"] if loop else [])]
+    keys = ["--keys", Keys(net).raw(), "--keys", Keys(net).truth()] if source.endswith(".mcap") else []
+    return [source, "--speed", _number(speed), *period, *(["--loop"] if loop else []), *keys]
 
 
 def _number(value: float) -> str:
@@ -141,7 +145,7 @@ def region_stack_commands(*, regions: list[str], endpoint: str, net: str, source
         n = len(regions)
         wanted = [f"sensor_agent*{n}", f"basestation*{n}", *(c.name for c in services if c.name not in
                                                               ("router", "sensor_agent", "basestation"))]
-        replay = [*_replay_pace(source, speed, loop, clock_period), "--wait-for", ",".join(wanted)]
+        replay = [*_replay_pace(source, net, speed, loop, clock_period), "--wait-for", ",".join(wanted)]
         services.append(ServiceCommand("replay", (*replay, *bus)))
     return services
 
