@@ -88,6 +88,7 @@ def plot(gospa: dict, kinds: list[str], path: Path) -> None:
     ax.set_xticks(x, rows, rotation=30, ha="right", fontsize=8)
     ax.set_ylabel("mean GOSPA (c = 10 m, p = 2), m")
     ax.set_title("Harder conditions: one change from the base grid per row (bars: ± sd over the row's grids)")
+    ax.set_ylim(0, ax.get_ylim()[1] * 1.25)  # room for the legend
     ax.grid(alpha=0.3, axis="y")
     ax.legend(fontsize="x-small", ncol=3, loc="upper left")
     fig.tight_layout()

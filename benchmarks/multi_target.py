@@ -20,15 +20,22 @@ the same mix of settings). On each grid:
 * Stone Soup GNN and JPDA (``benchmarks/mcmcda_vs_stonesoup.py``: same fused reports without
   track aid, same constant-velocity model) run on the tuning half over a small grid of their
   settings — initiator min_points 2–4 × deleter (2, 3, 5 missed scans or covariance trace
-  > 20 m²) at the first gate, then the other gate at the best, then the best with its own
-  process noise q ∈ {0.01, 0.05, 0.1, 0.2} m²/s³ besides ours — and the setting with the
-  lowest mean GOSPA over the tuning half is scored on the held-out half.
+  > 20 m²) at the first gate, then the other gate at the best, then (JPDA) its pd of a report
+  ∈ {0.5, 0.6, 0.7} besides ours, then the best with its own process noise q ∈ {0.01, 0.05,
+  0.1, 0.2} m²/s³ besides ours — and the setting with the lowest mean GOSPA over the tuning
+  half is scored on the held-out half;
+* so are JIPDA, MFA and a labelled GM-PHD built from Stone Soup's parts
+  (``benchmarks/stonesoup_peers.py``: the same input; a first grid over the pd each assumes,
+  then one parameter at a time);
+* ``--conditions N``: N grids per row of harder conditions (``benchmarks/multi_conditions.py``),
+  ours with its defaults beside each Stone Soup tracker with the setting chosen above.
 
 Our defaults are chosen on the tuning half only (``--variant`` runs other settings of ours on
 it). Scores as ``bintrack eval`` (``bintrack.evaluation.metrics.multi_target_scores``) at every scan from
 the first entry to the last exit: GOSPA (c = 10 m, p = 2, α = 2) and its parts (m²), mean
-|tracks − people|, identity switches (CLEAR MOT mismatches) summed over the half, and ms per
-scan (ours: fusion + MCMCDA, and MCMCDA alone; Stone Soup: its tracking step). The seed
+|tracks − people|, identity switches (CLEAR MOT mismatches) and track ids summed over the
+half, IDF1 (motmetrics, hit threshold 5 m), and ms per scan (ours: fusion + MCMCDA; Stone
+Soup: its tracking step). The seed
 spread of ours (its mean GOSPA over the half for each sampler seed) is printed beside the
 spread of GNN's over its settings on the tuning half.
 
