@@ -54,6 +54,7 @@ Run: ``nice -n 10 .venv/bin/python benchmarks/multi_target.py [--quick] [--jobs 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import importlib.util
 import itertools
 import json
@@ -234,15 +235,39 @@ def run_ours(args) -> tuple:
     return name, scores, case
 
 
+SCORE_CACHE: Path | None = None  # scores of Stone Soup runs already made (set by main; None: none kept)
+PEER_SOURCES = ("mcmcda_vs_stonesoup.py", "stonesoup_peers.py", "peer_gating.py", "peer_jipda.py", "peer_mfa.py",
+                "peer_phd.py")
+
+
 def run_stonesoup(args) -> tuple:
+    """One Stone Soup tracker with one setting on one grid: (grid, kind, setting, Score or None
+    if abandoned). Kept under ``SCORE_CACHE`` by what it depends on (the fused reports, the
+    setting, the trackers' source), so that a run cut short resumes where it stopped."""
     name, case, kind, setting = args
+    path = None if SCORE_CACHE is None else SCORE_CACHE / f"{_score_key(case, kind, setting)}.json"
+    if path is not None and path.exists():
+        kept = json.loads(path.read_text())
+        return name, kind, setting, None if kept is None else vs.Score(**{**kept, "series": None})
     if kind in sp.PEERS:
         result = sp.run_peer(case, kind, setting, _field(case.path))
     else:
         result = vs.run_stonesoup(case, kind, setting, case.config)
-    if result is None:
-        return name, kind, setting, None
-    return name, kind, setting, vs.score(result.tracks, case, result.step_s)
+    score = None if result is None else vs.score(result.tracks, case, result.step_s)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(None if score is None else score.__dict__ | {"series": None}, default=float))
+    return name, kind, setting, score
+
+
+def _score_key(case, kind: str, setting) -> str:
+    digest = hashlib.sha256()
+    for source in PEER_SOURCES:
+        digest.update((Path(__file__).parent / source).read_bytes())
+    digest.update(repr((kind, setting, case.path.name, case.config, [r.t for r in case.reports])).encode())
+    for reports in case.plain_reports:
+        digest.update(repr((reports.t, [(r.x, r.y, r.cov) for r in reports.reports])).encode())
+    return digest.hexdigest()[:32]
 
 
 # --------------------------------------------------------------------------- summaries
@@ -310,6 +335,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--conditions", type=int, default=0, metavar="N",
                         help="also N grids per harder condition (benchmarks/multi_conditions.py; default none)")
     parser.add_argument("--conditions-only", action="store_true", help="only the conditions (needs --tuned)")
+    parser.add_argument("--fresh", action="store_true",
+                        help="run every Stone Soup setting again (default: reuse the scores kept under --cache)")
     parser.add_argument("--conditions-plot", type=Path, default=DEFAULT_CONDITIONS_PLOT,
                         help="PNG of GOSPA per condition (default docs/multi_conditions.png)")
     args = parser.parse_args(argv)
@@ -343,7 +370,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"    {name}: {command(spec)}")
     print(flush=True)
 
-    ctx = multiprocessing.get_context("fork")
+    global SCORE_CACHE
+    SCORE_CACHE = None if args.fresh else args.cache / "scores"
+    ctx = multiprocessing.get_context("fork")  # the workers see SCORE_CACHE
     with ctx.Pool(args.jobs) as pool:
         def progress(label, jobs, fn):
             out = []

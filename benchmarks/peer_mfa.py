@@ -14,11 +14,17 @@ of Kalman updates, and around it:
 * initiation: Stone Soup's ``MultiMeasurementInitiator`` (tentative tracks by GNN, confirmed at
   ``min_points`` reports) on the detections that no kept history of any track takes now;
 * a track's estimate: its heaviest component;
-* deletion: once its heaviest component has missed ``misses`` consecutive scans;
-* at most ``components`` histories per track (the heaviest), to bound the time per scan.
+* deletion: once its heaviest component has missed ``misses`` consecutive scans.
+
+Every history the n-scan pruning keeps stays: keeping only a track's heaviest few can drop the
+one the global assignment chose, and Stone Soup's solver then finds no feasible assignment.
+Where it finds none all the same it raises ``RuntimeError`` (``run_peer`` counts the setting
+as abandoned on that grid).
 """
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 from scipy.stats import chi2
@@ -39,25 +45,27 @@ class MFATracker:
     tracks."""
 
     def __init__(self, predictor, updater, initiator, *, pd: float, clutter_density: float, gate: float = 0.99,
-                 window: int = 3, misses: int = 3, components: int = 16):
+                 window: int = 3, misses: int = 3):
         pda = PDAHypothesiser(predictor=predictor, updater=updater, clutter_spatial_density=clutter_density,
                               prob_detect=Probability(pd), prob_gate=Probability(gate))
         gated = GatedHypothesiser(pda, predictor, 1.001 * chi2.ppf(gate, 2))  # the PDA gate, checked once
         self.associator = MFADataAssociator(MFAHypothesiser(gated), slide_window=window)
         self.updater, self.initiator = updater, initiator
-        self.misses, self.components = misses, components
+        self.misses = misses
         self.tracks: set[Track] = set()
 
     def step(self, when, detections) -> list[tuple[str, float, float]]:
         """One scan at ``when`` (datetime) with ``detections`` (set of Stone Soup Detections)."""
         order = tuple(detections)  # the associator numbers detections by their place in this tuple
         taken = set()
-        for track, hypotheses in self.associator.associate(self.tracks, order, when).items():
+        with warnings.catch_warnings():  # its note that it solves the whole problem when the parts do not fit
+            warnings.simplefilter("ignore", UserWarning)
+            associations = self.associator.associate(self.tracks, order, when)
+        for track, hypotheses in associations.items():
             parts = [self.updater.update(h) if h else h.prediction for h in hypotheses]
             for h in hypotheses:
                 if h:
                     taken.add(h.measurement)
-            parts = sorted(parts, key=lambda c: float(c.weight), reverse=True)[: self.components]
             track.append(GaussianMixtureUpdate(components=parts, hypothesis=hypotheses))
         for track in [t for t in self.tracks if self._missed(t)]:
             self.tracks.discard(track)

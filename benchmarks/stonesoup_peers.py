@@ -114,7 +114,8 @@ def _initiator(predictor, updater, config, min_points: int):
 def run_peer(case: vs.Case, kind: str, setting: PeerSetting, field: tuple,
              budget: float = vs.SETTING_BUDGET) -> vs.Result | None:
     """The peer over the case's reports without track aid (as ``vs.run_stonesoup``); None when
-    it needs more than ``budget`` s of tracking time."""
+    it needs more than ``budget`` s of tracking time, or when Stone Soup's MFA finds no feasible
+    assignment (its ``RuntimeError``)."""
     extra = float(getattr(case.config, "extra_variance", 0.0))
     tracker = make_peer(kind, setting, case.config, field)
     ids: dict[str, int] = {}
@@ -124,7 +125,10 @@ def run_peer(case: vs.Case, kind: str, setting: PeerSetting, field: tuple,
         when = vs.EPOCH + datetime.timedelta(microseconds=round(reports.t * 1e6))
         detections = vs.to_detections(reports, when, extra)
         start = time.perf_counter()
-        rows = tracker.step(when, detections)
+        try:
+            rows = tracker.step(when, detections)
+        except RuntimeError:
+            return None
         steps.append(time.perf_counter() - start)
         if sum(steps) > budget:
             return None
