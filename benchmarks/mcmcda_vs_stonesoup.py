@@ -69,6 +69,7 @@ from bench_support import DATASETS, DOCS, REPO, say
 
 DEFAULT_PLOT = DOCS / "mcmcda_vs_stonesoup.png"
 GOSPA_C, GOSPA_P = 10.0, 2.0  # m; α = 2 (bintrack.evaluation.metrics.gospa)
+IDF1_HIT = 5.0  # m, the grid's spacing: how far a track may be from a person and count as theirs in IDF1
 SIM_PEOPLE, SIM_PFA = 10, 0.1
 EPOCH = datetime.datetime(2000, 1, 1)
 SETTING_BUDGET = 60.0  # s of tracking time for one Stone Soup setting on one dataset
@@ -113,6 +114,8 @@ class Score:
     switches: int
     ms_per_scan: float
     series: tuple  # (times, GOSPA per scan, tracks per scan)
+    idf1: float = math.nan  # IDF1 (motmetrics), a track within IDF1_HIT of a person may be theirs
+    track_ids: int = 0      # distinct track ids reported over the scored scans
 
 
 def simulate_case(seed: int, folder: Path) -> Path:
@@ -211,6 +214,7 @@ class Setting:
     min_points: int    # MultiMeasurementInitiator: reports (its first included) needed to confirm
     deleter: str       # "steps:N" (UpdateTimeStepsDeleter) or "cov:T" (position-covariance trace, m²)
     process_noise: float | None = None  # q of its CV model, m²/s³; None: our MCMCDA's
+    pd: float | None = None  # JPDA: detection probability of a report; None: our MCMCDA's
 
     def text(self, kind: str) -> str:
         gate = f"gate d_M<{self.gate:g}" if kind == "GNN" else f"P_G={self.gate:g}"
@@ -218,7 +222,8 @@ class Setting:
         deleter = (f"deleted at {value} consecutive missed scans" if kind_ == "steps"
                    else f"delete when pos. cov. trace > {value} m²")
         q = "" if self.process_noise is None else f", q {self.process_noise:g} m²/s³"
-        return f"{gate}, confirmed at {self.min_points} reports, {deleter}{q}"
+        pd = "" if self.pd is None else f", pd {self.pd:g}"
+        return f"{gate}, confirmed at {self.min_points} reports, {deleter}{q}{pd}"
 
 
 GATES = {"GNN": (3.0, 4.0), "JPDA": (0.99, 0.999)}  # Mahalanobis distance; PDA gate probability
@@ -316,7 +321,8 @@ def make_stonesoup(kind: str, setting: Setting, config, scans):
     else:
         hypothesiser = PDAHypothesiser(predictor=predictor, updater=updater,
                                        clutter_spatial_density=float(config.false_alarm_rate),
-                                       prob_detect=float(config.pd), prob_gate=setting.gate)
+                                       prob_detect=float(config.pd if setting.pd is None else setting.pd),
+                                       prob_gate=setting.gate)
         associator = JPDA(hypothesiser)
         tracker_class = MultiTargetMixtureTracker
     # The initiator's tentative tracks: associated by GNN (as in Stone Soup's tutorials), dropped
@@ -386,8 +392,10 @@ def run_stonesoup(case: Case, kind: str, setting: Setting, config, budget: float
 def score(tracks: dict, case: Case, step_s: list) -> Score:
     """``metrics.multi_target_scores`` (as ``bintrack eval``) at every scan of ``case`` from the
     first person's entry to the last one's exit (as ``benchmarks/paper004.py``), scans without
-    a track included, and the mean time per scan (over all scans)."""
+    a track included, IDF1 over the same scans (motmetrics, hit threshold ``IDF1_HIT``), the
+    number of track ids, and the mean time per scan (over all scans)."""
     from bintrack.formats import TrackRow
+    from bintrack.evaluation.clear_mot import Frame, clear_mot
     from bintrack.evaluation.metrics import multi_target_scores
 
     entry = min(p.start for p in case.paths.values())
@@ -395,10 +403,18 @@ def score(tracks: dict, case: Case, step_s: list) -> Score:
     times = [r.t for r in case.reports if entry <= r.t <= leave]
     rows = [TrackRow(t, k, x, y) for t in times for k, x, y in tracks.get(t, [])]
     m = multi_target_scores(rows, case.paths, GOSPA_C, GOSPA_P, times=times)
+    frames = []
+    for t in times:
+        present = [k for k, p in case.paths.items() if p.exists(t)]
+        mine = tracks.get(t, [])
+        frames.append(Frame(t, tuple(present), np.array([case.paths[k].position(t) for k in present]).reshape(-1, 2),
+                            tuple(k for k, _, _ in mine), np.array([(x, y) for _, x, y in mine]).reshape(-1, 2)))
+    idf1 = clear_mot(frames, IDF1_HIT, "hungarian").idf1
     return Score(m.gospa_mean, m.localisation_mean, m.missed_mean, m.false_mean, m.count_error_mean,
                  m.identity_switches, 1e3 * float(np.mean(step_s)) if step_s else math.nan,
                  (np.array([s.t for s in m.scans]), np.array([s.gospa.distance for s in m.scans]),
-                  np.array([s.n_tracks for s in m.scans])))
+                  np.array([s.n_tracks for s in m.scans])), math.nan if idf1 is None else idf1,
+                 len({r.track for r in rows}))
 
 
 # --------------------------------------------------------------------------- printing

@@ -20,15 +20,22 @@ the same mix of settings). On each grid:
 * Stone Soup GNN and JPDA (``benchmarks/mcmcda_vs_stonesoup.py``: same fused reports without
   track aid, same constant-velocity model) run on the tuning half over a small grid of their
   settings — initiator min_points 2–4 × deleter (2, 3, 5 missed scans or covariance trace
-  > 20 m²) at the first gate, then the other gate at the best, then the best with its own
-  process noise q ∈ {0.01, 0.05, 0.1, 0.2} m²/s³ besides ours — and the setting with the
-  lowest mean GOSPA over the tuning half is scored on the held-out half.
+  > 20 m²) at the first gate, then the other gate at the best, then (JPDA) its pd of a report
+  ∈ {0.5, 0.6, 0.7} besides ours, then the best with its own process noise q ∈ {0.01, 0.05,
+  0.1, 0.2} m²/s³ besides ours — and the setting with the lowest mean GOSPA over the tuning
+  half is scored on the held-out half;
+* so are JIPDA, MFA and a labelled GM-PHD built from Stone Soup's parts
+  (``benchmarks/stonesoup_peers.py``: the same input; a first grid over the pd each assumes,
+  then one parameter at a time);
+* ``--conditions N``: N grids per row of harder conditions (``benchmarks/multi_conditions.py``),
+  ours with its defaults beside each Stone Soup tracker with the setting chosen above.
 
 Our defaults are chosen on the tuning half only (``--variant`` runs other settings of ours on
 it). Scores as ``bintrack eval`` (``bintrack.evaluation.metrics.multi_target_scores``) at every scan from
 the first entry to the last exit: GOSPA (c = 10 m, p = 2, α = 2) and its parts (m²), mean
-|tracks − people|, identity switches (CLEAR MOT mismatches) summed over the half, and ms per
-scan (ours: fusion + MCMCDA, and MCMCDA alone; Stone Soup: its tracking step). The seed
+|tracks − people|, identity switches (CLEAR MOT mismatches) and track ids summed over the
+half, IDF1 (motmetrics, hit threshold 5 m), and ms per scan (ours: fusion + MCMCDA; Stone
+Soup: its tracking step). The seed
 spread of ours (its mean GOSPA over the half for each sampler seed) is printed beside the
 spread of GNN's over its settings on the tuning half.
 
@@ -47,30 +54,37 @@ Run: ``nice -n 10 .venv/bin/python benchmarks/multi_target.py [--quick] [--jobs 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import importlib.util
 import itertools
 import json
 import multiprocessing
 import sys
 import time
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from bench_support import DOCS
 import mcmcda_vs_stonesoup as vs  # Stone Soup wiring and scoring shared with issue 6's benchmark (beside it)
+import multi_conditions as conditions  # the harder conditions' rows (issue 42)
+import stonesoup_peers as sp      # JIPDA, MFA, GM-PHD (issue 42)
 
 SUITE_SEED = 2026
 PEOPLE = (2, 3, 4, 5, 6, 7, 8, 10)
 HALVES = {"tuning": 1000, "held-out": 2000}  # simulation seeds start here
 DEFAULT_CACHE = Path("/tmp/bintrack-multi-target")
 DEFAULT_PLOT = DOCS / "multi_target.png"
+DEFAULT_CONDITIONS_PLOT = DOCS / "multi_conditions.png"
 MIN_POINTS = (2, 3, 4)
 PEER_PROCESS_NOISE = (0.01, 0.05, 0.1, 0.2)  # m²/s³, besides ours, for the peer's CV model
 DELETERS = ("steps:2", "steps:3", "steps:5", "cov:20")
+JPDA_PD = (0.5, 0.6, 0.7)  # besides our MCMCDA's 0.85
+KINDS = ("GNN", "JPDA", *sp.PEERS)
 QUICK_SETTINGS = {"GNN": [vs.Setting(3.0, m, d) for m, d in ((2, "steps:3"), (3, "steps:2"), (3, "steps:3"), (4, "steps:3"))],
-                  "JPDA": [vs.Setting(0.99, m, d) for m, d in ((2, "steps:3"), (3, "steps:2"), (3, "steps:3"), (4, "steps:3"))]}
+                  "JPDA": [vs.Setting(0.99, m, d) for m, d in ((2, "steps:3"), (3, "steps:2"), (3, "steps:3"), (4, "steps:3"))],
+                  **sp.QUICK}
 say = vs.say
 
 
@@ -221,12 +235,39 @@ def run_ours(args) -> tuple:
     return name, scores, case
 
 
+SCORE_CACHE: Path | None = None  # scores of Stone Soup runs already made (set by main; None: none kept)
+PEER_SOURCES = ("mcmcda_vs_stonesoup.py", "stonesoup_peers.py", "peer_gating.py", "peer_jipda.py", "peer_mfa.py",
+                "peer_phd.py")
+
+
 def run_stonesoup(args) -> tuple:
+    """One Stone Soup tracker with one setting on one grid: (grid, kind, setting, Score or None
+    if abandoned). Kept under ``SCORE_CACHE`` by what it depends on (the fused reports, the
+    setting, the trackers' source), so that a run cut short resumes where it stopped."""
     name, case, kind, setting = args
-    result = vs.run_stonesoup(case, kind, setting, case.config)
-    if result is None:
-        return name, kind, setting, None
-    return name, kind, setting, vs.score(result.tracks, case, result.step_s)
+    path = None if SCORE_CACHE is None else SCORE_CACHE / f"{_score_key(case, kind, setting)}.json"
+    if path is not None and path.exists():
+        kept = json.loads(path.read_text())
+        return name, kind, setting, None if kept is None else vs.Score(**{**kept, "series": None})
+    if kind in sp.PEERS:
+        result = sp.run_peer(case, kind, setting, _field(case.path))
+    else:
+        result = vs.run_stonesoup(case, kind, setting, case.config)
+    score = None if result is None else vs.score(result.tracks, case, result.step_s)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(None if score is None else score.__dict__ | {"series": None}, default=float))
+    return name, kind, setting, score
+
+
+def _score_key(case, kind: str, setting) -> str:
+    digest = hashlib.sha256()
+    for source in PEER_SOURCES:
+        digest.update((Path(__file__).parent / source).read_bytes())
+    digest.update(repr((kind, setting, case.path.name, case.config, [r.t for r in case.reports])).encode())
+    for reports in case.plain_reports:
+        digest.update(repr((reports.t, [(r.x, r.y, r.cov) for r in reports.reports])).encode())
+    return digest.hexdigest()[:32]
 
 
 # --------------------------------------------------------------------------- summaries
@@ -241,13 +282,16 @@ class Summary:
     count_error: float
     switches: float      # summed over the half's grids
     ms_per_scan: float
+    idf1: float = float("nan")
+    track_ids: float = 0.0  # summed over the half's grids
 
 
 def summarise(scores: list[vs.Score]) -> Summary:
-    """Means over grids (switches summed)."""
+    """Means over grids (switches and track ids summed)."""
     return Summary(*(float(np.mean([getattr(s, f) for s in scores]))
                      for f in ("gospa", "localisation", "missed", "false", "count_error")),
-                   float(sum(s.switches for s in scores)), float(np.mean([s.ms_per_scan for s in scores])))
+                   float(sum(s.switches for s in scores)), float(np.mean([s.ms_per_scan for s in scores])),
+                   float(np.mean([s.idf1 for s in scores])), float(sum(s.track_ids for s in scores)))
 
 
 def over_seeds(per_grid: list[list[vs.Score]]) -> tuple[Summary, list[Summary]]:
@@ -259,11 +303,11 @@ def over_seeds(per_grid: list[list[vs.Score]]) -> tuple[Summary, list[Summary]]:
 
 def row(label: str, s: Summary, extra: str = "") -> str:
     return (f"{label:<26} {s.gospa:7.2f} {s.localisation:7.2f} {s.missed:7.2f} {s.false:7.2f} "
-            f"{s.count_error:9.2f} {s.switches:8.1f} {s.ms_per_scan:8.2f}  {extra}")
+            f"{s.count_error:9.2f} {s.switches:8.1f} {s.idf1:6.3f} {s.track_ids:6.0f} {s.ms_per_scan:8.2f}  {extra}")
 
 
 HEAD = (f"{'tracker':<26} {'GOSPA':>7} {'loc':>7} {'missed':>7} {'false':>7} {'|n err|':>9} "
-        f"{'ID sw':>8} {'ms/scan':>8}")
+        f"{'ID sw':>8} {'IDF1':>6} {'ids':>6} {'ms/scan':>8}")
 
 
 # --------------------------------------------------------------------------- main
@@ -280,26 +324,44 @@ def main(argv: list[str] | None = None) -> int:
                         help="also run this setting of ours on the tuning half (repeatable)")
     parser.add_argument("--json", type=Path, help="write the per-grid scores here")
     parser.add_argument("--plot", type=Path, default=DEFAULT_PLOT, help="PNG of GOSPA per grid (default docs/multi_target.png)")
-    parser.add_argument("--stonesoup", action="append", choices=("GNN", "JPDA"),
-                        help="only this Stone Soup tracker (repeatable; default both)")
+    parser.add_argument("--stonesoup", action="append", choices=KINDS,
+                        help=f"only this Stone Soup tracker (repeatable; default all: {', '.join(KINDS)})")
     parser.add_argument("--ours-only", action="store_true",
                         help="ours (defaults and --variant) on the tuning half only; no Stone Soup")
     parser.add_argument("--only", choices=sorted(VARIANTS),
                         help="just this setting of ours on both halves (no Stone Soup, no defaults)")
+    parser.add_argument("--tuned", type=Path,
+                        help="the --json record of an earlier run: its chosen Stone Soup settings instead of tuning")
+    parser.add_argument("--conditions", type=int, default=0, metavar="N",
+                        help="also N grids per harder condition (benchmarks/multi_conditions.py; default none)")
+    parser.add_argument("--conditions-only", action="store_true", help="only the conditions (needs --tuned)")
+    parser.add_argument("--fresh", action="store_true",
+                        help="run every Stone Soup setting again (default: reuse the scores kept under --cache)")
+    parser.add_argument("--conditions-plot", type=Path, default=DEFAULT_CONDITIONS_PLOT,
+                        help="PNG of GOSPA per condition (default docs/multi_conditions.png)")
     args = parser.parse_args(argv)
     if importlib.util.find_spec("stonesoup") is None:
         print("multi_target: Stone Soup is not installed (pip install -e '.[bench]')", file=sys.stderr)
         return 2
-    kinds = args.stonesoup or ["GNN", "JPDA"]
+    if args.conditions_only and not (args.tuned and args.conditions):
+        print("multi_target: --conditions-only needs --tuned FILE and --conditions N", file=sys.stderr)
+        return 2
+    kinds = args.stonesoup or list(KINDS)
     per_half = args.grids or (3 if args.quick else 8)
     seeds = list(range(args.mcmc_seeds or (2 if args.quick else 3)))
     args.cache.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
+    tuned = load_tuned(args.tuned) if args.tuned else {}
+    missing = [k for k in kinds if args.tuned and k not in tuned]
+    if missing:
+        print(f"multi_target: {args.tuned} chose no setting for {', '.join(missing)}", file=sys.stderr)
+        return 2
 
-    halves = suite(per_half)
-    print(f"Suite (seed {SUITE_SEED}): {per_half} grids per half, 12 x 12 nodes at 5 m, range 8 m, period 0.5 s; "
-          f"ours with sampler seeds {seeds[0]}..{seeds[-1]}.")
+    halves = {} if args.conditions_only else suite(per_half)
     names = {}
+    if halves:
+        print(f"Suite (seed {SUITE_SEED}): {per_half} grids per half, 12 x 12 nodes at 5 m, range 8 m, period 0.5 s; "
+              f"ours with sampler seeds {seeds[0]}..{seeds[-1]}.")
     for half, grids in halves.items():
         print(f"  {half}:")
         for spec in grids:
@@ -308,7 +370,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"    {name}: {command(spec)}")
     print(flush=True)
 
-    ctx = multiprocessing.get_context("fork")
+    global SCORE_CACHE
+    SCORE_CACHE = None if args.fresh else args.cache / "scores"
+    ctx = multiprocessing.get_context("fork")  # the workers see SCORE_CACHE
     with ctx.Pool(args.jobs) as pool:
         def progress(label, jobs, fn):
             out = []
@@ -317,6 +381,8 @@ def main(argv: list[str] | None = None) -> int:
                 say(f"  [{time.perf_counter() - started:6.0f} s] {label}: {k}/{len(jobs)}")
             return out
 
+        if args.conditions_only:
+            return run_conditions(progress, tuned, kinds, seeds, args)
         jobs = [(name, path, seeds, args.only or "default") for name, (half, path) in names.items()
                 if not args.ours_only or half == "tuning"]
         jobs += [(name, path, seeds, v) for v in args.variant for name, (half, path) in names.items() if half == "tuning"]
@@ -341,38 +407,78 @@ def main(argv: list[str] | None = None) -> int:
                 args.json.write_text(json.dumps({"ours": {f"{n}/{v}": [s.__dict__ | {"series": None} for s in sc]
                                                           for (n, v), sc in ours.items()}}, default=float, indent=1))
             return 0
-        stone: dict[tuple[str, str, vs.Setting], vs.Score | None] = {}
-        best: dict[str, vs.Setting] = {}
+        stone: dict[tuple, vs.Score | None] = {}
+        best: dict = {}
         for kind in kinds:
-            settings = (QUICK_SETTINGS[kind] if args.quick else
-                        [vs.Setting(vs.GATES[kind][0], m, d) for m, d in itertools.product(MIN_POINTS, DELETERS)])
-            stage = [(n, cases[n], kind, s) for s in settings for n in tuning]
-            for n, k, s, sc in progress(f"Stone Soup {kind} on the tuning half", stage, run_stonesoup):
-                stone[(n, k, s)] = sc
-            ranked = _rank(stone, kind, settings, tuning)
-            if not args.quick and ranked:
-                # coordinate search from the best so far: the other gate, then its own motion model
-                for label, field, values in (("other gate", "gate", vs.GATES[kind][1:]),
-                                             ("other process noise", "process_noise", PEER_PROCESS_NOISE)):
-                    others = [replace(ranked[0][1], **{field: v}) for v in values]
-                    stage = [(n, cases[n], kind, s) for s in others for n in tuning]
-                    for n, k, s, sc in progress(f"Stone Soup {kind}, {label}", stage, run_stonesoup):
-                        stone[(n, k, s)] = sc
-                    settings = settings + others
-                    ranked = _rank(stone, kind, settings, tuning)
-            if not ranked:
+            if kind in tuned:  # chosen by an earlier run: scored on both halves
+                best[kind] = tuned[kind]
+                stage = [(n, cases[n], kind, best[kind]) for n in tuning + held]
+                for n, k, s, sc in progress(f"Stone Soup {kind} as --tuned chose it", stage, run_stonesoup):
+                    stone[(n, k, s)] = sc
+                continue
+            chosen = tune(progress, stone, cases, kind, tuning, args.quick)
+            if chosen is None:
                 print(f"multi_target: every Stone Soup {kind} setting ran over its time budget", file=sys.stderr)
                 return 1
-            best[kind] = ranked[0][1]
+            best[kind] = chosen
             stage = [(n, cases[n], kind, best[kind]) for n in held]
             for n, k, s, sc in progress(f"Stone Soup {kind} on the held-out half", stage, run_stonesoup):
                 stone[(n, k, s)] = sc
 
-    # ------------------------------------------------------------------ report
+        print(report(ours, stone, best, kinds, tuning, held, halves, args.variant), flush=True)
+        record = {
+            "people": {n: _people(n, halves) for n in names},
+            "best": {k: s.text(k) for k, s in best.items()},
+            "best_fields": {k: {"type": type(s).__name__, **asdict(s)} for k, s in best.items()},
+            "ours": {f"{n}/{v}": [s.__dict__ | {"series": None} for s in sc] for (n, v), sc in ours.items()},
+            "stonesoup": {f"{n}/{k}/{s.text(k)}": (None if sc is None else sc.__dict__ | {"series": None})
+                          for (n, k, s), sc in stone.items()}}
+        if args.json:
+            args.json.write_text(json.dumps(record, default=float, indent=1))
+        plot(json.loads(json.dumps(record, default=float)), args.plot)
+        print(f"plot: {args.plot}")
+        if args.conditions:
+            run_conditions(progress, best, kinds, seeds, args)
+    print(f"(total {time.perf_counter() - started:.0f} s)")
+    return 0
+
+
+def tune(progress, stone: dict, cases: dict, kind: str, tuning: list[str], quick: bool):
+    """Stone Soup ``kind``'s setting of lowest mean GOSPA over the tuning half: the first grid
+    (``first_settings``), then ``stages`` one field at a time from the best so far (coordinate
+    search); None if every setting ran over its time budget. Scores go into ``stone``."""
+    settings = QUICK_SETTINGS[kind] if quick else first_settings(kind)
+    stage = [(n, cases[n], kind, s) for s in settings for n in tuning]
+    for n, k, s, sc in progress(f"Stone Soup {kind} on the tuning half", stage, run_stonesoup):
+        stone[(n, k, s)] = sc
+    ranked = _rank(stone, kind, settings, tuning)
+    if not quick and ranked:
+        for label, field, values in stages(kind):
+            others = [replace(ranked[0][1], **{field: v}) for v in values]
+            stage = [(n, cases[n], kind, s) for s in others for n in tuning]
+            for n, k, s, sc in progress(f"Stone Soup {kind}, {label}", stage, run_stonesoup):
+                stone[(n, k, s)] = sc
+            settings = settings + others
+            ranked = _rank(stone, kind, settings, tuning)
+    return ranked[0][1] if ranked else None
+
+
+def load_tuned(path: Path) -> dict:
+    """kind -> setting from the ``best_fields`` of a ``--json`` record."""
+    classes = {"Setting": vs.Setting, "PeerSetting": sp.PeerSetting}
+    fields = json.loads(path.read_text()).get("best_fields", {})
+    return {kind: classes[f.pop("type")](**f) for kind, f in fields.items()}
+
+
+def report(ours: dict, stone: dict, best: dict, kinds: list[str], tuning: list[str], held: list[str], halves: dict,
+           variants: list[str]) -> str:
+    """Both halves' tables, the chosen settings, the spreads and the issue's acceptance lines."""
     out = []
     for half, group in (("tuning", tuning), ("held-out", held)):
         out.append(f"{half} half ({len(group)} grids, {sum(_people(n, halves) for n in group)} people): "
-                   f"GOSPA c = 10 m, p = 2, alpha = 2 (m; parts in m²); |n err| mean |tracks - people|; ID switches summed")
+                   f"GOSPA c = 10 m, p = 2, alpha = 2 (m; parts in m²); |n err| mean |tracks - people|; ID switches "
+                   f"and track ids summed; IDF1 (hit {vs.IDF1_HIT:g} m) mean; ms/scan: ours fusion + MCMCDA, Stone Soup "
+                   f"its tracking step")
         out.append(HEAD)
         out.append("-" * len(HEAD))
         mean, per_seed = over_seeds([ours[(n, "default")] for n in group])
@@ -380,7 +486,7 @@ def main(argv: list[str] | None = None) -> int:
         out.append(row("ours (defaults)", mean, f"seeds: GOSPA {min(g):.2f}-{max(g):.2f}, switches "
                                                 f"{min(s.switches for s in per_seed):.0f}-{max(s.switches for s in per_seed):.0f}"))
         if half == "tuning":
-            for v in args.variant:
+            for v in variants:
                 vm, vseeds = over_seeds([ours[(n, v)] for n in group])
                 vg = [s.gospa for s in vseeds]
                 out.append(row(f"ours ({v})", vm, f"seeds: GOSPA {min(vg):.2f}-{max(vg):.2f}"))
@@ -389,49 +495,88 @@ def main(argv: list[str] | None = None) -> int:
             if any(s is None for s in scores):
                 out.append(f"{kind}: abandoned on some grid (over {vs.SETTING_BUDGET:g} s)")
                 continue
-            out.append(row(f"{kind} (tuned)", summarise(scores)))
+            g = [s.gospa for s in scores]
+            out.append(row(f"{kind} (tuned)", summarise(scores), f"grids: GOSPA sd {np.std(g):.2f}"))
         out.append("")
     for kind in kinds:
         out.append(f"Stone Soup {kind} chosen on the tuning half: {best[kind].text(kind)}")
-    ranked = _rank(stone, "GNN", sorted({s for (_, k, s) in stone if k == "GNN"}, key=str), tuning)
-    gnn = [m for m, _ in ranked]
     _, tune_seeds = over_seeds([ours[(n, "default")] for n in tuning])
     _, held_seeds = over_seeds([ours[(n, "default")] for n in held])
     spread = lambda xs: f"{np.mean(xs):.2f} (min {min(xs):.2f}, max {max(xs):.2f}, range {max(xs) - min(xs):.2f})"  # noqa: E731
     out.append(f"Spread of mean GOSPA: ours over sampler seeds, tuning half {spread([s.gospa for s in tune_seeds])}, "
-               f"held-out half {spread([s.gospa for s in held_seeds])}; GNN over its {len(gnn)} settings on the "
-               f"tuning half {spread(gnn)}; GNN's best 3 settings: {spread(gnn[:3])}")
+               f"held-out half {spread([s.gospa for s in held_seeds])}")
+    for kind in kinds:
+        ranked = [m for m, _ in _rank(stone, kind, sorted({s for (_, k, s) in stone if k == kind}, key=str), tuning)]
+        if len(ranked) > 1:
+            out.append(f"  {kind} over its {len(ranked)} settings on the tuning half {spread(ranked)}; "
+                       f"its best 3: {spread(ranked[:3])}")
     per_grid = [np.ptp([s.gospa for s in ours[(n, 'default')]]) for n in held]
     out.append(f"Per held-out grid, range of ours over sampler seeds: mean {np.mean(per_grid):.2f} m, max {max(per_grid):.2f} m")
     mean, _ = over_seeds([ours[(n, "default")] for n in held])
-    better = min((summarise([stone[(n, k, best[k])] for n in held]) for k in kinds
-                  if all(stone.get((n, k, best[k])) for n in held)), key=lambda s: s.gospa)
-    out.append("")
-    out.append(f"Acceptance on the held-out half, against the better tuned Stone Soup tracker (GOSPA {better.gospa:.2f} m):")
-    out.append(f"  mean GOSPA {mean.gospa:.2f} <= 0.9 x {better.gospa:.2f} = {0.9 * better.gospa:.2f}: "
-               f"{'yes' if mean.gospa <= 0.9 * better.gospa else 'no'} (ratio {mean.gospa / better.gospa:.3f})")
-    out.append(f"  mean count error {mean.count_error:.2f} <= {better.count_error:.2f}: "
-               f"{'yes' if mean.count_error <= better.count_error else 'no'}")
-    out.append(f"  identity switches {mean.switches:.1f} (mean over seeds) <= {better.switches:.0f}: "
-               f"{'yes' if mean.switches <= better.switches else 'no'}")
-    out.append(f"(total {time.perf_counter() - started:.0f} s)")
-    print("\n".join(out), flush=True)
-    record = {
-        "people": {n: _people(n, halves) for n in names},
-        "best": {k: s.text(k) for k, s in best.items()},
-        "ours": {f"{n}/{v}": [s.__dict__ | {"series": None} for s in sc] for (n, v), sc in ours.items()},
-        "stonesoup": {f"{n}/{k}/{s.text(k)}": (None if sc is None else sc.__dict__ | {"series": None})
-                      for (n, k, s), sc in stone.items()}}
+    peers = {k: summarise([stone[(n, k, best[k])] for n in held]) for k in kinds
+             if all(stone.get((n, k, best[k])) for n in held)}
+    if peers:
+        top = min(peers, key=lambda k: peers[k].gospa)
+        fewest = min(peers, key=lambda k: peers[k].count_error)
+        steady = min(peers, key=lambda k: peers[k].switches)
+        out.append("")
+        out.append(f"Acceptance (issue 42) on the held-out half, against the best of the {len(peers)} tuned peers:")
+        out.append(f"  mean GOSPA {mean.gospa:.2f} <= 0.85 x {top} {peers[top].gospa:.2f} = {0.85 * peers[top].gospa:.2f}: "
+                   f"{'yes' if mean.gospa <= 0.85 * peers[top].gospa else 'no'} (ratio {mean.gospa / peers[top].gospa:.3f})")
+        out.append(f"  mean count error {mean.count_error:.2f} <= {fewest} {peers[fewest].count_error:.2f}: "
+                   f"{'yes' if mean.count_error <= peers[fewest].count_error else 'no'}")
+        out.append(f"  identity switches {mean.switches:.1f} (mean over seeds) <= {steady} {peers[steady].switches:.0f}: "
+                   f"{'yes' if mean.switches <= peers[steady].switches else 'no'}")
+    return "\n".join(out)
+
+
+def run_conditions(progress, best: dict, kinds: list[str], seeds: list[int], args) -> int:
+    """The harder conditions (``multi_conditions``): ours and each peer with its chosen setting."""
+    rows = conditions.grids(args.conditions)
+    print(f"Conditions: {args.conditions} grids per row (seeds {conditions.SEED}..{conditions.SEED + args.conditions - 1}); "
+          f"base: {command(dict(seed=conditions.SEED, **conditions.BASE))}; Stone Soup as chosen on the suite's tuning half:")
+    for kind in kinds:
+        print(f"  {kind}: {best[kind].text(kind)}")
+    print(flush=True)
+    names = {}
+    for row_name, specs in rows.items():
+        for spec in specs:
+            names[f"{row_name}/{spec['seed']}"] = dataset(spec, args.cache)
+    cases, ours = {}, {}
+    for (key, scores, case) in progress("conditions: ours", [((n, "default"), p, seeds, "default") for n, p in names.items()],
+                                        _run_tagged):
+        ours[key[0]], cases[key[0]] = scores, case
+    stone = {}
+    stage = [(n, cases[n], kind, best[kind]) for kind in kinds for n in names]
+    for n, k, _, sc in progress("conditions: Stone Soup", stage, run_stonesoup):
+        stone[(n, k)] = sc
+    gospa, counts, switches = {}, {}, {}
+    for row_name in rows:
+        grids = [n for n in names if n.split("/")[0] == row_name]
+        for figure, into in (("gospa", gospa), ("count_error", counts), ("switches", switches)):
+            into[row_name] = {"ours": [float(np.mean([getattr(s, figure) for s in ours[n]])) for n in grids]}
+            for kind in kinds:
+                got = [stone.get((n, kind)) for n in grids]
+                into[row_name][kind] = None if any(s is None for s in got) else [getattr(s, figure) for s in got]
+    text, lost = conditions.table(gospa, counts, switches, kinds)
+    print("Conditions: mean GOSPA (m) ± sd over the row's grids (ours: each grid's mean over sampler seeds); "
+          "ours/best: ours over the best peer's; n err and ID sw: ours/best peer's (switches summed)")
+    print(text)
+    print("Rows where a tuned peer beats us by more than 5 %: " + ("; ".join(lost) if lost else "none"), flush=True)
+    conditions.plot(gospa, kinds, args.conditions_plot)
+    print(f"plot: {args.conditions_plot}")
     if args.json:
-        args.json.write_text(json.dumps(record, default=float, indent=1))
-    plot(json.loads(json.dumps(record, default=float)), args.plot)
-    print(f"plot: {args.plot}")
+        path = args.json.with_name(args.json.stem + "-conditions.json")
+        path.write_text(json.dumps({"gospa": gospa, "count_error": counts, "switches": switches,
+                                    "ours": {n: [s.__dict__ | {"series": None} for s in sc] for n, sc in ours.items()},
+                                    "stonesoup": {f"{n}/{k}": (None if sc is None else sc.__dict__ | {"series": None})
+                                                  for (n, k), sc in stone.items()}}, default=float, indent=1))
     return 0
 
 
 def plot(data: dict, path: Path, extra: dict | None = None) -> None:
     """Mean GOSPA per grid: ours (mean over sampler seeds, bar from the lowest to the highest
-    seed) beside the tuned GNN and JPDA, tuning half then held-out half. ``data`` is the
+    seed) beside each tuned Stone Soup tracker, tuning half then held-out half. ``data`` is the
     ``--json`` record; ``extra`` maps a label to another such record's ``ours`` for one
     more setting of ours."""
     import matplotlib
@@ -453,7 +598,8 @@ def plot(data: dict, path: Path, extra: dict | None = None) -> None:
         hi = np.array([max(v) if v else np.nan for v in g])
         ax.errorbar(x + dx, mean, yerr=[mean - lo, hi - mean], fmt="o", color=colour, capsize=3,
                     label=f"{label}: mean over sampler seeds, bar min-max")
-    for kind, marker, colour in (("GNN", "s", "C1"), ("JPDA", "^", "C2")):
+    for kind, marker, colour in (("GNN", "s", "C1"), ("JPDA", "^", "C2"), ("JIPDA", "v", "C4"), ("MFA", "D", "C5"),
+                                 ("PHD", "x", "C6")):
         by_grid = {}
         for key, sc in data["stonesoup"].items():
             n, k, _ = key.split("/", 2)
@@ -465,8 +611,9 @@ def plot(data: dict, path: Path, extra: dict | None = None) -> None:
         chosen = [data["stonesoup"].get(f"{n}/{kind}/{best}") for n in grids]
         ax.plot(x, [c["gospa"] if c else np.nan for c in chosen], marker, color=colour, ms=7,
                 label=f"{kind}, setting tuned on the tuning half")
-        ax.vlines(x + 0.04, [min(by_grid.get(n, [np.nan])) for n in grids], [max(by_grid.get(n, [np.nan])) for n in grids],
-                  color=colour, alpha=0.35, lw=4 if kind == "GNN" else 2)
+        if kind == "GNN":
+            ax.vlines(x + 0.04, [min(by_grid.get(n, [np.nan])) for n in grids],
+                      [max(by_grid.get(n, [np.nan])) for n in grids], color=colour, alpha=0.35, lw=4)
     split = sum(n[0] == "t" for n in grids) - 0.5
     ax.axvline(split, color="k", lw=1)
     ax.set_ylim(ax.get_ylim()[0], ax.get_ylim()[1] * 1.12)
@@ -474,13 +621,38 @@ def plot(data: dict, path: Path, extra: dict | None = None) -> None:
     ax.text(split + 0.1, ax.get_ylim()[1] * 0.8, "held-out half", ha="left", va="top")
     ax.set_xticks(x, [f"{n}\n{data['people'][n]} p" for n in grids], fontsize=8)
     ax.set_ylabel("mean GOSPA (c = 10 m, p = 2), m")
-    ax.set_title("Multi-target suite: GOSPA per grid (shaded: Stone Soup over the settings tried on the tuning half)")
+    ax.set_title("Multi-target suite: GOSPA per grid (shaded: GNN over the settings tried on the tuning half)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize="x-small", loc="upper left", ncol=2)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def first_settings(kind: str) -> list:
+    """The first grid of settings a Stone Soup tracker is tuned over."""
+    if kind in sp.PEERS:
+        return list(sp.FIRST[kind])
+    return [vs.Setting(vs.GATES[kind][0], m, d) for m, d in itertools.product(MIN_POINTS, DELETERS)]
+
+
+def stages(kind: str) -> list[tuple[str, str, tuple]]:
+    """(label, field, values) tried one field at a time from the best setting so far."""
+    if kind in sp.PEERS:
+        return sp.STAGES[kind]
+    out = [("other gate", "gate", vs.GATES[kind][1:])]
+    if kind == "JPDA":
+        out.append(("detection probability", "pd", JPDA_PD))
+    return out + [("other process noise", "process_noise", PEER_PROCESS_NOISE)]
+
+
+def _field(path: Path) -> tuple:
+    """(xmin, ymin, xmax, ymax) of the dataset's region, m."""
+    from bintrack.formats import open_dataset
+
+    r = open_dataset(path).deployment.region
+    return r.xmin, r.ymin, r.xmax, r.ymax
 
 
 def _ours_table(ours: dict, group: list[str], variants: list[str], halves: dict) -> str:

@@ -354,6 +354,26 @@ def test_darpa_grid_variations_curving_walks_pairs_stops_and_layout():
     assert not any(s.vx == 0 and s.vy == 0 for w in plain.trajectories for s in w.segments)
 
 
+@pytest.mark.parametrize("grid, spacing", [(16, 3.5), (9, 7.0)])
+def test_darpa_grid_denser_or_sparser_over_the_same_field(grid, spacing):
+    scenario = build_scenario("darpa-grid", 2, people=4, grid=grid, spacing=spacing, node_jitter=0.0, dead=0)
+    xs = sorted({s.x for s in scenario.sensors})
+    assert len(scenario.sensors) == grid * grid and xs == pytest.approx([spacing * k for k in range(grid)])
+    side = (grid - 1) * spacing
+    region = scenario.deployment.region
+    assert (region.xmin, region.xmax) == pytest.approx((-spacing, side + spacing))
+    for walk in scenario.trajectories:  # people cross the whole field, edge to edge
+        t = np.linspace(walk.t_entry, walk.t_exit, 200)
+        xy = walk.position(t)
+        assert np.all((xy > -1e-9) & (xy < side + 1e-9))
+        ends = [walk.position(walk.t_entry), walk.position(walk.t_exit)]
+        assert all(min(p[0], p[1], side - p[0], side - p[1]) == pytest.approx(0, abs=1e-9) for p in ends)
+    result = simulate_scenario(scenario, 2)
+    assert {e.sensor for e in result.events} <= {s.id for s in scenario.sensors}
+    # the default spacing is the scenario's 5 m (the shipped datasets stay as they are)
+    assert build_scenario("darpa-grid", 2, people=4, spacing=5.0) == build_scenario("darpa-grid", 2, people=4)
+
+
 def test_darpa_grid_spreads_the_arrivals_over_a_long_duration():
     scenario = build_scenario("darpa-grid", 11, people=10, duration=3600.0)
     entries = [p.t_entry for p in scenario.trajectories]
@@ -415,6 +435,8 @@ def test_motion_scenarios():
     (dict(name="darpa-grid", people=2, stops=3), "--stops must be within 0..2"),
     (dict(name="darpa-grid", grid=1), "--grid must be within"),
     (dict(name="darpa-grid", node_jitter=3.0), "--node-jitter must be within"),
+    (dict(name="darpa-grid", spacing=4.0, node_jitter=2.0), r"--node-jitter must be within \[0, 2\) m"),
+    (dict(name="darpa-grid", spacing=0.0), "--spacing must be positive"),
     (dict(name="laser-testbed", passes=1), "--passes must be at least 2"),
     (dict(name="motion", trajectory="circular"), "--trajectory must be one of constant, random-walk"),
     (dict(name="nowhere"), "unknown scenario"),
@@ -433,6 +455,7 @@ def test_impossible_options_are_rejected(options, message):
     ["uniform-800", "--nodes", "80", "--trajectory", "random", "--period", "0.5", "--pd", "0.9", "--pfa", "0.01"],
     ["sector-300", "--nodes", "60", "--sectors", "6", "--trajectory", "circular", "--clock-offset", "0.1"],
     ["darpa-grid", "--people", "2"],
+    ["darpa-grid", "--people", "2", "--grid", "9", "--spacing", "7"],
     ["laser-testbed", "--passes", "4"],
     ["motion", "--nodes", "15", "--trajectory", "random-walk", "--duration", "20"],
 ])

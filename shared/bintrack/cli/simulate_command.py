@@ -40,6 +40,7 @@ OPTIONS = (
     ("clock_offset", float, "S", "per-node clock offsets drawn in ±S seconds"),
     ("clock_skew", float, "X", "per-node clock skews drawn in ±X"),
     ("grid", int, "N", "nodes per side of the grid (darpa-grid, default 12)"),
+    ("spacing", float, "M", "distance between neighbouring nodes, m (darpa-grid, default 5)"),
     ("node_jitter", float, "M", "node position jitter, ± m in x and y (darpa-grid, default 0.5)"),
     ("dead", int, "N", "dead nodes (darpa-grid, default 6)"),
     ("entry_gap", float, "S", "seconds between people's entries (darpa-grid, default 10)"),

@@ -214,7 +214,8 @@ def _people(rng: np.random.Generator, extra: np.random.Generator, people: int, f
 def darpa_grid(seed: int = 0, *, people: int = 3, sensing_range: float = 8.0, pd: float = 0.7, pfa: float = 0.05,
                period: float = 0.5, duration: float | None = None, grid: int = GRID_SIZE,
                node_jitter: float = GRID_JITTER, dead: int = GRID_DEAD, entry_gap: float = 10.0,
-               walk: str = "straight", crossings: int = 1, pairs: int = 0, stops: int = 0) -> Scenario:
+               walk: str = "straight", crossings: int = 1, pairs: int = 0, stops: int = 0,
+               spacing: float = GRID_SPACING) -> Scenario:
     """Paper 004 §V (DARPA NEST 2005): 144 PIR nodes in a 12×12 grid at ≈5 m spacing (jitter
     ±0.5 m), 6 of them dead (listed, never report), range 8 m, pd 0.7, pfa 0.05 per sample,
     sampling every 0.5 s at random phases; ``people`` walk across at 1–1.5 m/s entering about
@@ -223,7 +224,8 @@ def darpa_grid(seed: int = 0, *, people: int = 3, sensing_range: float = 8.0, pd
     entries evenly over it (about (duration − 90 s)/people apart, the last one leaving before
     the end), so that a long run is tracked all along (with no crossings then).
 
-    Variations (defaults give the scenario above): ``grid`` nodes per side, ``node_jitter`` (m),
+    Variations (defaults give the scenario above): ``grid`` nodes per side ``spacing`` m apart
+    (a denser or sparser grid over the same field: 16 at 3.5 m, 9 at 7 m), ``node_jitter`` (m),
     ``dead`` nodes, ``entry_gap`` (s between entries), ``walk`` straight|curving, ``crossings``
     (pairs of people crossing mid-field), ``pairs`` (side-by-side pairs), ``stops`` (people
     who stop for a while); see :func:`_people`."""
@@ -235,8 +237,9 @@ def darpa_grid(seed: int = 0, *, people: int = 3, sensing_range: float = 8.0, pd
     _probability("pd", pd)
     _probability("pfa", pfa)
     _check(2 <= grid <= 200, f"--grid must be within 2..200 nodes per side, got {grid}")
-    _check(math.isfinite(node_jitter) and 0 <= node_jitter < GRID_SPACING / 2,
-           f"--node-jitter must be within [0, {GRID_SPACING / 2:g}) m, got {node_jitter}")
+    _check(math.isfinite(spacing) and spacing > 0, f"--spacing must be positive, got {spacing}")
+    _check(math.isfinite(node_jitter) and 0 <= node_jitter < spacing / 2,
+           f"--node-jitter must be within [0, {spacing / 2:g}) m, got {node_jitter}")
     _check(0 <= dead <= grid * grid, f"--dead must be within 0..{grid * grid}, got {dead}")
     _choice("walk", walk, WALKS)
     possible = _crossing_pairs(people)
@@ -247,16 +250,16 @@ def darpa_grid(seed: int = 0, *, people: int = 3, sensing_range: float = 8.0, pd
            f"--pairs {pairs}: the last {2 * pairs} people would include crossing ones; lower --pairs or --crossings")
     _check(0 <= stops <= people, f"--stops must be within 0..{people}, got {stops}")
     layout, paths, phases, extra = _streams(seed, 4)
-    field = Region(xmin=0, ymin=0, xmax=(grid - 1) * GRID_SPACING, ymax=(grid - 1) * GRID_SPACING)
-    positions = deployments.grid_positions(layout, grid, grid, GRID_SPACING, node_jitter)
+    field = Region(xmin=0, ymin=0, xmax=(grid - 1) * spacing, ymax=(grid - 1) * spacing)
+    positions = deployments.grid_positions(layout, grid, grid, spacing, node_jitter)
     sensors = deployments.disks_at(positions, sensing_range, period=period, pd=pd, pfa=pfa)
     dead_ids = deployments.dead_nodes(layout, [s.id for s in sensors], dead)
     # a long --duration spreads the arrivals over it, so that the whole run has people in it
     longest_walk = math.ceil(math.hypot(field.xmax - field.xmin, field.ymax - field.ymin) / WALKING_SPEEDS[0] + 2.0)
-    spacing = entry_gap if duration is None else max(entry_gap, (duration - longest_walk - entry_gap) / people)
+    arrivals = entry_gap if duration is None else max(entry_gap, (duration - longest_walk - entry_gap) / people)
     try:
-        walkers = _people(paths, extra, people, field, entry_gap, walk, crossings if spacing == entry_gap else 0,
-                          pairs, stops, spacing)
+        walkers = _people(paths, extra, people, field, entry_gap, walk, crossings if arrivals == entry_gap else 0,
+                          pairs, stops, arrivals)
     except ValueError as exc:
         raise ScenarioError(f"{exc}; lower --entry-gap or --crossings") from None
     last_exit = max(w.t_exit for w in walkers)
@@ -264,7 +267,7 @@ def darpa_grid(seed: int = 0, *, people: int = 3, sensing_range: float = 8.0, pd
         duration = max(90.0, math.ceil(last_exit + 5.0))
     _check(duration >= last_exit, f"--duration {duration:g} s ends before the last person leaves at {last_exit:.1f} s")
     sampling = dict(zip((s.id for s in sensors), np.round(phases.uniform(0, period, len(sensors)), 6).tolist()))
-    margin = GRID_SPACING
+    margin = spacing
     region = Region(xmin=field.xmin - margin, ymin=field.ymin - margin,
                     xmax=field.xmax + margin, ymax=field.ymax + margin)
     deployment = Deployment(name="darpa-grid", units="m", region=region, sensors=sensors)
