@@ -13,12 +13,13 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
+import time
 from collections import Counter
 
 import zenoh
 
 from bintrack.formats import check_value
-from bintrack.keys import parse_key
+from bintrack.keys import ParsedKey, parse_key
 from bintrack.live.checkpoint import SensorAgentCheckpoint
 from bintrack.live.sensor_hosting import HISTORY_SPAN, HostedSensors
 from bintrack.live.service import Service, log, service_main
@@ -39,6 +40,9 @@ class SensorAgent(Service):
         self.hosts: HostedSensors | None = None
         self.raw_keys: dict[str, str] = {}
         self.acked = float("-inf")  # the last clock tick acknowledged
+        self.acked_sent: int | None = None  # the raw samples replay had published by that tick
+        self.since_ack = 0  # raw samples (of every sensor) received after it
+        self.replay_gone: float | None = None  # monotonic time replay's token went (out of reach), while it is
         self.resent = Counter()  # raw samples a restarted replay sent again: new (True) or already here (False)
 
     async def setup(self) -> None:
@@ -76,6 +80,7 @@ class SensorAgent(Service):
         self.subscribe(self.keys.clock(), self.on_clock)
         self.subscribe(self.keys.eos(), self.on_eos)
         self.serve(self.keys.state(), self.on_state)
+        self.follow_presence(self.on_presence)
 
     async def _resume(self, checkpoint: SensorAgentCheckpoint) -> None:
         """Take the state saved at the last clock tick acknowledged (statuses, counters, and the
@@ -99,16 +104,47 @@ class SensorAgent(Service):
                 break
             log.info("%s: waiting for replay's recent samples", self.name)
             await asyncio.sleep(RETRY)
-        taken = 0
+        return self._handle_recent(replies, newer)[0]
+
+    def _handle_recent(self, replies: list[bytes], newer: bool) -> tuple[int, int | None]:
+        """Handle the hosted sensors' samples of a ``recent`` answer (see :meth:`_take_recent`);
+        (how many were taken, how many raw samples published since the last tick acknowledged
+        neither arrived nor were still held by replay, None if unknown)."""
+        taken, samples, end = 0, 0, None
         for payload in replies:
             raw = _decode(RawSample, payload)
-            if raw is None or raw.sensor not in self.hosts.sensors:
+            if raw is None:
+                end = _decode(Clock, payload) or end
+                continue
+            samples += 1
+            if raw.sensor not in self.hosts.sensors:
                 continue
             hosted = self.hosts.sensors[raw.sensor]
             if raw.t > hosted.last_t or (not newer and raw.t == hosted.last_t):
                 hosted.handle(raw)
                 taken += 1
-        return taken
+        known = end is not None and end.sent is not None and self.acked_sent is not None
+        # what arrived after the tick is a prefix of what replay published since, what it holds a suffix
+        return taken, max(0, end.sent - self.acked_sent - self.since_ack - samples) if known else None
+
+    def on_presence(self, parsed: ParsedKey, present: bool) -> None:
+        """Replay's token went (its link, or a router between, is down) or came back: once back,
+        before any sample it publishes next, take the raw samples it published meanwhile from its
+        ``recent`` queryable (a reply takes milliseconds: the loop waits on purpose) and say how
+        many were taken and how many it no longer held."""
+        if parsed.kind != "alive" or parsed.service != "replay" or self.hosts is None:
+            return
+        if not present:
+            self.replay_gone = self.replay_gone or time.monotonic()
+            return
+        if self.replay_gone is None:
+            return
+        away, self.replay_gone = time.monotonic() - self.replay_gone, None
+        taken, lost = self._handle_recent(self.query(f"{self.keys.recent()}?after={self.acked!r}", 2.0), newer=True)
+        log.warning("%s: replay was out of reach for %.1f s; %d raw samples of its sensors published since t=%g s "
+                    "taken from replay%s", self.name, away, taken, self.acked,
+                    "" if lost is None else f"; {lost} raw samples of all sensors neither arrived nor were held by replay any more "
+                    "(lost)")
 
     async def on_router_back(self) -> None:
         if self.hosts is not None and self.hosts.sensors:
@@ -119,6 +155,7 @@ class SensorAgent(Service):
         raw = self.read(RawSample, sample)
         if raw is None:
             return
+        self.since_ack += 1
         key = str(sample.key_expr)
         expected = self.raw_keys.get(raw.sensor)
         if expected is None:
@@ -155,7 +192,7 @@ class SensorAgent(Service):
             log.info("%s: of the raw samples a restarted replay sent again, %d were new and %d already handled",
                      self.name, self.resent[True], self.resent[False])
             self.resent.clear()
-        self.acked = message.t
+        self.acked, self.acked_sent, self.since_ack = message.t, message.sent, 0
         self.hosts.trim(message.t)
         if self.checkpoints.path is not None:
             self.checkpoints.save(self.hosts.checkpoint(message.t))

@@ -134,8 +134,10 @@ class ReplaySource:
 
     def recent_answer(self, after: float) -> list[bytes]:
         """``control/recent?after=T``: each raw sample published after the tick at ``after`` (s),
-        in order, then a ``Clock`` (the last tick published, 0 before the first) that ends the
-        answer, so the asker knows it is complete."""
+        in order, then a ``Clock`` (the last tick published, 0 before the first, and every raw
+        sample published so far in ``sent``) that ends the answer, so the asker knows it is
+        complete, and can tell from the ``sent`` of the tick at ``after`` how many samples since
+        are no longer held."""
         answer = [payload for tick, _, payload in self.recent if tick >= after]
-        answer.append(encode(Clock(t=0.0 if self.last_tick is None else self.last_tick)))
+        answer.append(encode(Clock(t=0.0 if self.last_tick is None else self.last_tick, sent=self.raw_published)))
         return answer
