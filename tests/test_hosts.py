@@ -14,16 +14,19 @@ import os
 import shutil
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
 import pytest
 
 from bintrack.formats import read_tracks
+from bintrack.hosts.mesh_links import hub_endpoint, router_options, site_endpoints
 from bintrack.hosts.netns import NetnsError, ip, namespaces, unavailable
 from bintrack.hosts.site_network import PREFIX, SiteNetwork, leftovers
+from bintrack.live.stack import region_stack_commands
 
-from support import HUNG, REPO, bintrack
+from support import HUNG, REPO, bintrack, free_port, wait_logged
 from test_faults import Up, children, cut, exported_tracks
 
 SEED = 21  # a simulated 2 × 2 field; not a seed the merge's defaults were chosen on
@@ -133,6 +136,7 @@ def test_up_hosts_as_a_user_who_is_not_root_says_so_in_one_line():
 # ------------------------------------------------------------------ faults across hosts
 
 REGIONS = ("r0c0", "r0c1", "r1c0", "r1c1")
+NET = "darpa-grid"
 CUT = 10.0  # s the link stays down
 
 
@@ -180,3 +184,149 @@ def test_a_site_cut_off_for_ten_seconds_loses_nothing(regions_field, tmp_path):
     assert max(abs(a.x - b.x) + abs(a.y - b.y) for a, b in zip(live, offline)) < 1e-6
     print(f"\ncut of r1c1 for {CUT:g} s: {taken.split(': ', 1)[1]}; {back.split(': ', 1)[1]}; "
           + "; ".join(line.split(" ", 1)[1] for line in lines_with(up, "fetched from the sensors' state")))
+
+
+class Process:
+    """A process of a :class:`SiteStack`, its output in a log file."""
+
+    def __init__(self, name: str, argv: list[str], log_dir: Path):
+        self.name = name
+        self.log_path = log_dir / f"{name}.log"
+        self._log = open(self.log_path, "w")
+        self.proc = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT, cwd=REPO)
+
+    @property
+    def log(self) -> str:
+        if not self._log.closed:
+            self._log.flush()
+        return self.log_path.read_text()
+
+
+class SiteStack:
+    """The stack of ``up --regions 4 --hosts`` started by the test itself, process by process,
+    from the same commands (``region_stack_commands`` on a :class:`SiteNetwork`): so that a
+    site's processes can run in an environment of their own (``site_env``: region → variables)
+    and replay can be told which services it waits for (``wait_for``, default all)."""
+
+    def __init__(self, field: Path, log_dir: Path, *, speed: float = 0.0, record: Path | None = None,
+                 site_env: dict[str, dict[str, str]] | None = None, wait_for: str | None = None):
+        self.network = SiteNetwork(list(REGIONS)).create()
+        self.procs: dict[str, Process] = {}
+        try:
+            listen = f"tcp/127.0.0.1:{free_port()}"
+            self.hub = self.start("router-hub", [sys.executable, "-m", "bintrack.services.router", "-l", listen, "-l",
+                                                 hub_endpoint(self.network, listen), "--name", "hub", *router_options()],
+                                  log_dir)
+            wait_logged(self.hub, "listening on")
+            state = log_dir / "state"
+            state.mkdir()
+            for command in region_stack_commands(
+                    regions=list(REGIONS), endpoint=listen, net=NET, source=str(field), speed=speed,
+                    record=None if record is None else str(record), routers=site_endpoints(self.network, listen),
+                    hub=hub_endpoint(self.network, listen), router_args=router_options()):
+                argv = command.argv(sys.executable)
+                if command.name != "router":
+                    argv += ["--id", command.key, "--state-dir", str(state)]
+                if command.name == "replay" and wait_for is not None:
+                    argv[argv.index("--wait-for") + 1] = wait_for
+                if command.site:
+                    env = [f"{k}={v}" for k, v in (site_env or {}).get(command.site, {}).items()]
+                    argv = self.network.argv(command.site, ["env", *env, *argv] if env else argv)
+                self.start(command.key, argv, log_dir)
+        except BaseException:
+            self.stop()
+            raise
+
+    def start(self, name: str, argv: list[str], log_dir: Path) -> Process:
+        self.procs[name] = Process(name, argv, log_dir)
+        return self.procs[name]
+
+    def stop(self) -> None:
+        """Stop every process (SIGTERM, then SIGKILL if it hangs) and remove the network."""
+        for proc in self.procs.values():
+            if proc.proc.poll() is None:
+                proc.proc.terminate()
+        for proc in self.procs.values():
+            try:
+                proc.proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.proc.kill()
+                proc.proc.wait()
+        self.network.remove()
+
+
+@needs_namespaces
+@pytest.mark.slow
+def test_a_whole_site_killed_and_restarted_loses_nothing(regions_field, tmp_path):
+    """Every process of site r0c1 (its router, sensor agent and base station) is SIGKILLed at
+    once mid-run, as when its host loses power; ``up`` restarts each in the site's namespace,
+    they resume from their checkpoints and fetch what they missed, and the run ends with the
+    offline rows."""
+    field, offline = regions_field
+    recording = tmp_path / "run.mcap"
+    up = Up(str(field), "--tracker", "mcmcda", "--regions", "4", "--hosts", "--speed", "2", "--record",
+            str(recording), "--exit-at-end")
+    tag = hosts_tag(up)
+    up.event_time_at_least(10.0)
+    pids = ip("netns", "pids", f"{tag}-r0c1").split()
+    assert len(pids) == 3, pids
+    for pid in pids:
+        os.kill(int(pid), signal.SIGKILL)
+    for name in ("router-r0c1", "sensor_agent-r0c1", "basestation-r0c1"):
+        up.wait_for(lambda line: line.startswith(f"up: {name} restarted"), f"{name}'s restart")
+    assert up.finish() == 0, up.log[-4000:]
+    assert made_by(tag) == []
+    live = exported_tracks(recording, tmp_path)
+    assert [(r.t, r.track) for r in live] == [(r.t, r.track) for r in offline], up.log[-6000:]
+    assert max(abs(a.x - b.x) + abs(a.y - b.y) for a, b in zip(live, offline)) < 1e-6
+
+
+@pytest.fixture(scope="module")
+def clock_offset(tmp_path_factory) -> Path:
+    """A preload library that shifts CLOCK_REALTIME (and gettimeofday) by $CLOCK_OFFSET_NS, built
+    from tests/data/clock_offset.c: a host whose clock is off. (libfaketime 0.9.10, Debian's,
+    breaks Python's timed waits: EINVAL from sleeps with its monotonic clock left alone, a hang in
+    ``Event.wait`` without.)"""
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        pytest.skip("no C compiler (cc) to build the clock-offset preload")
+    library = tmp_path_factory.mktemp("clock") / "clock_offset.so"
+    subprocess.run([compiler, "-shared", "-fPIC", "-O2", "-o", str(library), str(REPO / "tests/data/clock_offset.c"),
+                    "-ldl"], check=True, capture_output=True)
+    return library
+
+
+def realtime_lead(env: dict[str, str], namespace: str) -> float:
+    """How far CLOCK_REALTIME is ahead of CLOCK_TAI in ``namespace`` under ``env``, s (read in one
+    process, so no time passes between the two)."""
+    code = "import time; print(time.time() - time.clock_gettime(time.CLOCK_TAI))"
+    argv = ["ip", "netns", "exec", namespace, "env", *(f"{k}={v}" for k, v in env.items()), sys.executable, "-c", code]
+    return float(subprocess.run(argv, capture_output=True, text=True, check=True).stdout)
+
+
+@needs_namespaces
+@pytest.mark.slow
+def test_sites_whose_clocks_are_off_by_half_a_second_give_the_same_rows(regions_field, clock_offset, tmp_path):
+    """Site r0c1's clock runs 0.5 s ahead of the hub's and site r1c0's 0.5 s behind (their
+    routers and services see CLOCK_REALTIME shifted). Event time is the replay's, carried in
+    every message, and no service reads a wall clock to order or place anything: the merged
+    rows are the offline ones. (What the offset does change: a site's router stamps the samples
+    of its services with its own clock, so Zenoh's timestamps from r0c1 are 0.5 s ahead; bintrack
+    does not read them.)"""
+    field, offline = regions_field
+    shifted = {region: {"LD_PRELOAD": str(clock_offset), "CLOCK_OFFSET_NS": str(ns)}
+               for region, ns in (("r0c1", 500_000_000), ("r1c0", -500_000_000))}
+    recording = tmp_path / "run.mcap"
+    stack = SiteStack(field, tmp_path, speed=0.0, record=recording, site_env=shifted)
+    try:
+        here = realtime_lead({}, stack.network.namespace("r0c0"))
+        for region, shift in (("r0c1", 0.5), ("r1c0", -0.5)):
+            lead = realtime_lead(shifted[region], stack.network.namespace(region)) - here
+            assert abs(lead - shift) < 0.01, (region, lead)
+        wait_logged(stack.procs["recorder"], "messages recorded", "the recording closed")
+        assert stack.procs["replay"].proc.wait(timeout=HUNG) == 0, stack.procs["replay"].log[-3000:]
+    finally:
+        stack.stop()
+    live = exported_tracks(recording, tmp_path)
+    assert [(r.t, r.track) for r in live] == [(r.t, r.track) for r in offline]
+    assert max(abs(a.x - b.x) + abs(a.y - b.y) for a, b in zip(live, offline)) < 1e-6
