@@ -121,8 +121,9 @@ $(BENCH_STAMP): $(STAMP) pyproject.toml
 bench: $(BENCH_STAMP)
 	$(PY) benchmarks/mcmcda_vs_stonesoup.py $(BENCH_ARGS)
 
-# Issue 21: our MCMCDA against Stone Soup tuned on half of a suite of simulated grids and scored
-# on the other half (benchmarks/multi_target.py; `BENCH_ARGS=--quick` for a smaller run).
+# Issues 21 and 42: our MCMCDA against Stone Soup's GNN, JPDA, JIPDA, MFA and GM-PHD, tuned on half
+# of a suite of simulated grids and scored on the other half (benchmarks/multi_target.py;
+# `BENCH_ARGS=--quick` for a smaller run, `BENCH_ARGS="--conditions 3"` adds the harder conditions).
 bench-multi: $(BENCH_STAMP)
 	nice -n 10 $(PY) benchmarks/multi_target.py $(BENCH_ARGS)
 
