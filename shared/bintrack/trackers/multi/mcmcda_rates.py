@@ -36,6 +36,7 @@ class RateEstimate:
 
     @property
     def pd(self) -> float:
+        """p̂_d: probability that a present target yields a report in a scan."""
         hits = sum(c[0] for c in self.counts)
         present = sum(c[1] for c in self.counts)
         value = (hits + PRIOR_TRACK_SCANS * self.prior_pd) / (present + PRIOR_TRACK_SCANS)
@@ -43,6 +44,7 @@ class RateEstimate:
 
     @property
     def false_alarm_rate(self) -> float:
+        """λ̂_f: false reports per unit area (units²) per scan."""
         false = sum(c[2] for c in self.counts)
         n = len(self.counts)
         return (false + PRIOR_SCANS * self.area * self.prior_rate) / ((n + PRIOR_SCANS) * self.area)
