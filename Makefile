@@ -36,9 +36,10 @@ test-engine: $(STAMP) engine
 # The inner loop (about a third of `make test`'s time): what `make test` runs but the `slow`
 # tests (long or statistical checks) and the longest live files, which `make test` (and CI)
 # still run: live equals offline for every tracker, kills and restarts of whole stacks, bad
-# input to each service, regions on a router mesh, the two-site compose stack, lossy links.
+# input to each service, regions on a router mesh and on hosts of their own, the two-site compose stack, lossy links.
 FAST_SKIP := test_live.py test_faults.py test_bus_faults.py test_regions_live.py test_compose_multi.py \
-             test_lossy_link.py test_compose_engine.py test_fault_pairs.py test_fault_peers.py test_fault_routers.py
+             test_lossy_link.py test_compose_engine.py test_fault_pairs.py test_fault_peers.py test_fault_routers.py \
+             test_hosts.py
 test-fast: $(STAMP)
 	$(PY) -m pytest -q -n auto --dist loadfile -m "not slow" $(addprefix --ignore=tests/,$(FAST_SKIP))
 
@@ -120,8 +121,9 @@ $(BENCH_STAMP): $(STAMP) pyproject.toml
 bench: $(BENCH_STAMP)
 	$(PY) benchmarks/mcmcda_vs_stonesoup.py $(BENCH_ARGS)
 
-# Issue 21: our MCMCDA against Stone Soup tuned on half of a suite of simulated grids and scored
-# on the other half (benchmarks/multi_target.py; `BENCH_ARGS=--quick` for a smaller run).
+# Issues 21 and 42: our MCMCDA against Stone Soup's GNN, JPDA, JIPDA, MFA and GM-PHD, tuned on half
+# of a suite of simulated grids and scored on the other half (benchmarks/multi_target.py;
+# `BENCH_ARGS=--quick` for a smaller run, `BENCH_ARGS="--conditions 3"` adds the harder conditions).
 bench-multi: $(BENCH_STAMP)
 	nice -n 10 $(PY) benchmarks/multi_target.py $(BENCH_ARGS)
 

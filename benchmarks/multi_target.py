@@ -40,15 +40,17 @@ spread of ours (its mean GOSPA over the half for each sampler seed) is printed b
 spread of GNN's over its settings on the tuning half.
 
 Simulated grids are cached under ``/tmp/bintrack-multi-target`` (``--cache``). Needs the
-``bench`` extra (Stone Soup); exits 2 without it. Default run (8 + 8 grids, 3 sampler seeds,
-2 worker processes): 4.5 min wall on the idle 2-core machine, 62 min once on 2 cores shared
-with other work (load 15–25), most of it Stone Soup's 17 + 17 settings on the tuning half;
-``--quick`` (3 + 3 grids, 2 seeds, 4 Stone Soup settings per associator) is a few minutes. A
-Stone Soup setting is abandoned past 60 s of wall time on one grid, so under heavy load fewer
-JPDA settings are ranked; ``--stonesoup GNN`` leaves JPDA out (2.5 min on the idle machine).
+``bench`` extra (Stone Soup, ortools); exits 2 without it. Default run (8 + 8 grids, 3
+sampler seeds, the five Stone Soup trackers' 88 settings on the tuning half): 40 min with one
+worker (``--jobs 1``) on the 2-core machine beside another job; with GNN and JPDA alone
+(``--stonesoup GNN --stonesoup JPDA``) it was 4.5 min on the idle machine with 2 workers.
+``--conditions 3 --conditions-only --tuned FILE``: 20 min more. ``--quick`` (3 + 3 grids, 2
+seeds, a few settings per tracker) is a few minutes. A Stone Soup setting is abandoned past 60 s
+of wall time on one grid (or when Stone Soup's MFA finds no feasible assignment); its score is
+kept under ``--cache`` so that a run cut short resumes (``--fresh``: run them again).
 Progress on stderr, results on stdout.
 
-Run: ``nice -n 10 .venv/bin/python benchmarks/multi_target.py [--quick] [--jobs 2]``
+Run: ``nice -n 10 .venv/bin/python benchmarks/multi_target.py [--quick] [--jobs 2] [--conditions 3]``
 """
 
 from __future__ import annotations
@@ -178,6 +180,9 @@ VARIANTS: dict[str, dict] = {
     "mg4.5": {"fusion": {"min_gain": 4.5}},
     "mg5": {"fusion": {"min_gain": 5.0}},
     "mg4e0.5": {"fusion": {"min_gain": 4.0, "expected_gain": 0.5}},
+    "adapt50": {"mcmcda": {"adapt_rates": 50}},
+    "adapt200": {"mcmcda": {"adapt_rates": 200}},
+    "adapt1000": {"mcmcda": {"adapt_rates": 1000}},
     "pd0.8": {"mcmcda": {"pd": 0.8}},
     "pd0.9": {"mcmcda": {"pd": 0.9}},
     "lf1e-4": {"mcmcda": {"false_alarm_rate": 1e-4}},

@@ -47,6 +47,7 @@ class Merge(Service):
         self.tracks = TrackHistory(self.keys.tracks())
         self.departed: dict[str, float | None] = {}  # region gone → the first tick (s) after it went
         self.sent = 0  # track sets published, in each progress report
+        self.late: dict[str, list[float]] = {}  # region → times of its scans that came after their time was merged
 
     async def setup(self) -> None:
         deployment = await self.wait_for_deployment()
@@ -67,7 +68,7 @@ class Merge(Service):
         self.subscribe(self.keys.region_progress(), self.on_region_progress)
         self.subscribe(self.keys.clock(), self.on_clock)
         self.follow_presence(self.on_presence)
-        self.follow_end_of_stream(["basestation"], lambda t: self.emit(self.merge.finish()))
+        self.follow_end_of_stream(["basestation"], self.finish)
         log.info("%s: merging regions %s", self.name, ", ".join(self.regions.names))
 
     def resume(self) -> bool:
@@ -118,8 +119,27 @@ class Merge(Service):
     def on_region_tracks(self, sample: zenoh.Sample) -> None:
         region = self.region_of(sample)
         tracks = self.decode(TrackSet, sample) if region is not None else None
-        if tracks is not None:
-            self.emit(self.merge.add(region, tracks))
+        if tracks is None:
+            return
+        if tracks.t <= self.merge.emitted_up_to:
+            self.late.setdefault(region, []).append(tracks.t)
+        else:
+            self.say_late(region)
+        self.emit(self.merge.add(region, tracks))
+
+    def say_late(self, region: str) -> None:
+        """Name the scans of ``region`` that came after the merged scans of their time went out
+        (a region cut off while event time went on, catching up): left out, not merged silently."""
+        times = self.late.pop(region, None)
+        if times:
+            log.warning("%s: %d scans of region %s (t=%g–%g s) came after the merged scans of their time had been "
+                        "published; left out (those merged scans show its last tracks, stale once it was given up)",
+                        self.name, len(times), region, min(times), max(times))
+
+    def finish(self, t: float) -> None:
+        for region in list(self.late):
+            self.say_late(region)
+        self.emit(self.merge.finish())
 
     def on_region_progress(self, sample: zenoh.Sample) -> None:
         region = self.region_of(sample)

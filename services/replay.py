@@ -62,6 +62,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--wait-for", action="append", default=[], metavar="SERVICE[,SERVICE…]",
                         help="publish nothing until each of these services holds a liveliness token (SERVICE*N: N "
                         "instances of it); repeatable")
+    parser.add_argument("--no-hold", dest="hold", action="store_false",
+                        help="once they were all there, do not hold event time while a --wait-for service is gone (as "
+                        "sensors in the field would not): one that comes back catches up from what the others hold, "
+                        "and names what it could not")
     parser.add_argument("--ready-timeout", type=positive_float, default=60.0, metavar="S",
                         help="how long to wait for the --wait-for services, s (default: %(default)s)")
     parser.add_argument("--keys", action="append", default=[], type=_key_expr, metavar="KEYEXPR",
@@ -106,7 +110,7 @@ class Replay(Service):
             log.warning("replay: %s", self.source.recording.note())
         self.source.play_on(self.keys)
         wanted = list(dict.fromkeys(name.strip() for item in args.wait_for for name in item.split(",") if name.strip()))
-        self.gate = ReplayGate(wanted, lambda: self.router_watch.lost_at is not None, self.stopping)
+        self.gate = ReplayGate(wanted, lambda: self.router_watch.lost_at is not None, self.stopping, args.hold)
         self.player: ReplayPlayer | None = None  # made in setup, once the run is known
         self.checked: asyncio.Task | None = None  # every row of the source read, while the others start
 
@@ -180,6 +184,7 @@ class Replay(Service):
                     self.exit_status = 1
                 self.checked.cancel()
                 return
+        gate.started = True
         try:
             await self.checked  # every row read (and found good) before anything is published
             warning = self.source.span.warning(f"{self.args.source}/events.csv") if self.source.span else None

@@ -86,12 +86,21 @@ def run(args: argparse.Namespace) -> int:
         log.error("router: cannot start on %s: %s", ", ".join(args.listen), str(exc).split(" at ")[0])
         return 1
 
-    def on_event(event) -> None:  # a Zenoh thread: logging only
-        if event.kind == zenoh.SampleKind.PUT:
-            log.info("router %s: %s connected", args.name, describe(event.transport))
-        else:
-            log.warning("router %s: %s left", args.name, describe(event.transport))
+    remote: dict[str, str] = {}  # a peer's zid → the address its link comes from or goes to
 
+    def on_link(event) -> None:  # a Zenoh thread
+        if event.kind == zenoh.SampleKind.PUT:
+            remote[str(event.link.zid)] = str(event.link.dst)
+
+    def on_event(event) -> None:  # a Zenoh thread: logging only
+        where = remote.get(str(event.transport.zid))
+        at = f" ({where})" if where else ""
+        if event.kind == zenoh.SampleKind.PUT:
+            log.info("router %s: %s connected%s", args.name, describe(event.transport), at)
+        else:
+            log.warning("router %s: %s left%s", args.name, describe(event.transport), at)
+
+    links = session.info.declare_link_events_listener(on_link, history=True)
     listener = session.info.declare_transport_events_listener(on_event, history=True)
     log.info("router %s (%s): listening on %s%s", args.name, str(session.info.zid())[:8], ", ".join(args.listen),
              f", meshed with {', '.join(args.connect)}" if args.connect else "")
@@ -103,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
                 break
     finally:
         listener.undeclare()
+        links.undeclare()
         session.close()
         log.info("router %s: stopped", args.name)
     return 0

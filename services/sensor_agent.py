@@ -13,21 +13,24 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
+import time
 from collections import Counter
 
 import zenoh
 
 from bintrack.formats import check_value
-from bintrack.keys import parse_key
+from bintrack.keys import ParsedKey, parse_key
 from bintrack.live.checkpoint import SensorAgentCheckpoint
+from bintrack.live.recent_catchup import take_recent
 from bintrack.live.sensor_hosting import HISTORY_SPAN, HostedSensors
 from bintrack.live.service import Service, log, service_main
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.bus_payloads import Clock, EndOfStream, RawSample
-from bintrack.message_codec import MessageError, decode_view, encode, is_resent
+from bintrack.message_codec import encode, is_resent
 from bintrack.transition_detector import TransitionDetector
 
 RETRY = 0.5  # s between asks for replay's recent samples
+CATCH_UP_TRIES = 20  # asks for them, 0.1 s apart, once replay is back after a cut
 
 
 class SensorAgent(Service):
@@ -39,6 +42,10 @@ class SensorAgent(Service):
         self.hosts: HostedSensors | None = None
         self.raw_keys: dict[str, str] = {}
         self.acked = float("-inf")  # the last clock tick acknowledged
+        self.acked_sent: int | None = None  # the raw samples replay had published by that tick
+        self.since_ack = 0  # raw samples (of every sensor) received after it
+        self.last_raw_t = float("-inf")  # event time of the last raw sample received, s
+        self.replay_gone: float | None = None  # monotonic time replay's token went (out of reach), while it is
         self.resent = Counter()  # raw samples a restarted replay sent again: new (True) or already here (False)
 
     async def setup(self) -> None:
@@ -76,6 +83,7 @@ class SensorAgent(Service):
         self.subscribe(self.keys.clock(), self.on_clock)
         self.subscribe(self.keys.eos(), self.on_eos)
         self.serve(self.keys.state(), self.on_state)
+        self.follow_presence(self.on_presence)
 
     async def _resume(self, checkpoint: SensorAgentCheckpoint) -> None:
         """Take the state saved at the last clock tick acknowledged (statuses, counters, and the
@@ -95,20 +103,40 @@ class SensorAgent(Service):
         (the others arrived). How many were taken."""
         while True:  # until replay answers (after a router outage it may not be back yet)
             replies = await asyncio.to_thread(self.query, f"{self.keys.recent()}?after={self.acked!r}", 2.0)
-            if any(_decode(Clock, payload) is not None for payload in replies) or self.stopping.is_set():
-                break
+            catch_up = take_recent(replies, self.hosts, newer)
+            if catch_up.complete or self.stopping.is_set():
+                return catch_up.taken
             log.info("%s: waiting for replay's recent samples", self.name)
             await asyncio.sleep(RETRY)
-        taken = 0
-        for payload in replies:
-            raw = _decode(RawSample, payload)
-            if raw is None or raw.sensor not in self.hosts.sensors:
-                continue
-            hosted = self.hosts.sensors[raw.sensor]
-            if raw.t > hosted.last_t or (not newer and raw.t == hosted.last_t):
-                hosted.handle(raw)
-                taken += 1
-        return taken
+
+    def on_presence(self, parsed: ParsedKey, present: bool) -> None:
+        """Replay's token went (its link, or a router between, is down) or came back (then catch up)."""
+        if parsed.kind != "alive" or parsed.service != "replay" or self.hosts is None:
+            return
+        if not present:
+            self.replay_gone = self.replay_gone or time.monotonic()
+        elif self.replay_gone is not None:
+            self.catch_up()
+
+    def catch_up(self) -> None:
+        """Replay is back after it was out of reach (its token, or a sample or tick of its, came
+        again): before anything it publishes next is handled, take the raw samples it published
+        meanwhile from its ``recent`` queryable (a reply takes milliseconds: the loop waits on
+        purpose) and say how many were taken, and how many were lost: neither received nor held
+        by replay any more."""
+        away, self.replay_gone, last = time.monotonic() - self.replay_gone, None, self.last_raw_t
+        for _ in range(CATCH_UP_TRIES):  # a token may come back before the queryable (eclipse-zenoh/zenoh#588)
+            catch_up = take_recent(self.query(f"{self.keys.recent()}?after={self.acked!r}", 1.0), self.hosts, newer=True)
+            if catch_up.complete or self.stopping.is_set():
+                break
+            time.sleep(0.1)
+        lost = catch_up.lost(self.acked_sent, self.since_ack)
+        log.warning("%s: replay was out of reach for %.1f s; of the raw samples it published after t=%g s, %d arrived "
+                    "and %d were still held (%d of them this agent's, taken)%s", self.name, away, self.acked,
+                    self.since_ack, catch_up.held, catch_up.taken,
+                    "; replay did not answer: how many were lost is unknown" if lost is None else "; none was lost"
+                    if lost == 0 else f"; {lost} raw samples of all sensors, published after t={last!r} s and before "
+                    f"t={catch_up.first_held!r} s, were lost")
 
     async def on_router_back(self) -> None:
         if self.hosts is not None and self.hosts.sensors:
@@ -119,6 +147,10 @@ class SensorAgent(Service):
         raw = self.read(RawSample, sample)
         if raw is None:
             return
+        if self.replay_gone is not None:  # replay's samples came back before its token did
+            self.catch_up()
+        self.since_ack += 1
+        self.last_raw_t = raw.t
         key = str(sample.key_expr)
         expected = self.raw_keys.get(raw.sensor)
         if expected is None:
@@ -150,12 +182,14 @@ class SensorAgent(Service):
         message = self.read(Clock, sample)
         if message is None:
             return
+        if self.replay_gone is not None:
+            self.catch_up()
         self.hosts.forget_before(message.t - HISTORY_SPAN)
         if self.resent:
             log.info("%s: of the raw samples a restarted replay sent again, %d were new and %d already handled",
                      self.name, self.resent[True], self.resent[False])
             self.resent.clear()
-        self.acked = message.t
+        self.acked, self.acked_sent, self.since_ack = message.t, message.sent, 0
         self.hosts.trim(message.t)
         if self.checkpoints.path is not None:
             self.checkpoints.save(self.hosts.checkpoint(message.t))
@@ -184,13 +218,6 @@ class SensorAgent(Service):
                 state = hosted.state(since, after)
                 if source is None or state.missed:
                     query.reply(key, encode(state))
-
-
-def _decode(cls, payload: bytes):
-    try:
-        return decode_view(cls, payload)
-    except MessageError:
-        return None
 
 
 def build_parser() -> argparse.ArgumentParser:

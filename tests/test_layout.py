@@ -19,7 +19,7 @@ SERVICES = ROOT / "services"
 
 # A module may import modules of its own rank or a lower one (the README's order, top to bottom).
 RANKS = {"sim": 1, "trackers": 2, "evaluation": 3, "pipeline": 4, "live": 5, "client": 5, "view": 5,
-         "cli": 6, "services": 6, "mqtt": 5}
+         "cli": 6, "services": 6, "mqtt": 5, "hosts": 5}
 GROUND = 0
 
 

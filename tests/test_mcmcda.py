@@ -419,3 +419,24 @@ def test_peer_estimates_given_to_update_join_the_reports_as_the_offline_peer_doe
     assert live.late_estimates == 0
     late = LocalEstimate(t=0.0, node=deployment.sensors[0].id, tracker="arc", x=1.0, y=1.0)
     assert live.update(late) == [] and live.late_estimates == 1  # its scan was tracked long ago
+
+
+def test_adapt_rates_estimates_the_reports_pd_and_false_report_density():
+    # three people reported 6 scans in 10, one false report a scan on 60 × 60; the tracker is
+    # told pd 0.85 and 2 false reports a scan, and learns the scene's from the settled scans
+    _, scans = constant_velocity_reports(seed=4, scans=100, clutter=1.0, pd=0.6)
+    told = MCMCDAConfig(seed=1, false_alarm_rate=CLUTTER_DENSITY, birth_rate=1e-5)
+    adapting = OnlineMCMCDA(dataclasses.replace(told, adapt_rates=200), area=60.0 * 60.0)
+    fixed = OnlineMCMCDA(told, area=60.0 * 60.0)
+    for scan in scans:
+        adapting.step(scan)
+        fixed.step(scan)
+    # p̂_d moves from 0.85 to near 0.6 but stays above it: a track counts only between its first
+    # report and its last, and its last is a detection (mcmcda_rates)
+    assert 0.6 <= adapting.config.pd <= 0.75
+    # λ̂_f from 2 false reports a scan down towards 1: the reports no track takes (a person's before
+    # their track begins among them) and the prior's 20 scans at 2
+    assert 1.0 <= adapting.config.false_alarm_rate * 60.0 ** 2 <= 1.6
+    assert fixed.config == told  # off by default: the configured values throughout
+    with pytest.raises(TrackerConfigError, match="needs the field's area"):
+        OnlineMCMCDA(dataclasses.replace(told, adapt_rates=10))

@@ -109,6 +109,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "--listen, with its scheme: tcp/ or, with --secure, tls/), a sensor agent and a base station "
                         "per region, and the merge; the dataset's own regions if it names N, else its field cut into "
                         "a grid of N")
+    parser.add_argument("--hosts", action="store_true",
+                        help="with --regions: each region's site on a host of its own, a Linux network namespace "
+                        "(its router, sensor agent and base station in it), linked to this machine by veth pairs "
+                        "on 198.19.K.0/24 (needs root; everything made is removed at the end)")
     parser.add_argument("--progress-interval", type=positive_float, default=1.0, metavar="S",
                         help="seconds between progress lines (default: %(default)s)")
 
@@ -366,6 +370,16 @@ def planned_stack(args: argparse.Namespace, net: str, view_port: int | None,
                           bridge_args=bridge_args, on_disk_full=getattr(args, "on_disk_full", "stop"))
 
 
+def _site_options(network, listen: str) -> dict:
+    """region_stack_commands' options for sites on the hosts of ``network`` (none without)."""
+    if network is None:
+        return {}
+    from bintrack.hosts.mesh_links import hub_endpoint, router_options, site_endpoints
+
+    return {"routers": site_endpoints(network, listen), "hub": hub_endpoint(network, listen),
+            "router_args": router_options()}
+
+
 def _map_socket(bind: str, port: int) -> socket.socket | None:
     """The map's listening socket, bound here and kept open for the view (and its restarts): the
     port asked for, else a free one. None, said in one line, if neither can be had: the stack then
@@ -402,6 +416,39 @@ def _bridge_args(args: argparse.Namespace) -> tuple[str, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not getattr(args, "hosts", False):
+        return _run(args)
+    from bintrack.hosts.netns import NetnsError, unavailable
+    from bintrack.hosts.site_network import SiteNetwork
+
+    problem = unavailable()
+    if problem is not None:
+        raise CommandError(f"--hosts: {problem}")
+    if args.regions is None:
+        raise CommandError("--hosts runs the sites of --regions N on hosts of their own; give --regions N")
+    if args.secure:
+        raise CommandError("--hosts does not run the secure profile yet; leave out --secure or --hosts")
+    regions = _region_source(args)
+    network = SiteNetwork(regions[2])
+    handlers = {sig: signal.signal(sig, _raise_stopped) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        with network:  # removed on every way out: the end, an error, a signal
+            return _run(args, regions, network)
+    except NetnsError as exc:
+        raise CommandError(f"--hosts: {exc}") from None
+    except Stopped as exc:  # before the stack's own handling began
+        print(f"\nup: {exc} received; stopping", file=sys.stderr)
+        return 128 + exc.signum
+    finally:
+        if regions[0] is not None:
+            regions[0].cleanup()
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+
+
+def _run(args: argparse.Namespace, regions=None, network=None) -> int:
+    """The stack of ``args``; ``regions``: what :func:`_region_source` gave, if it was called
+    already; ``network``: the sites' hosts (a created SiteNetwork) for ``--hosts``."""
     bridge_args = ()
     if getattr(args, "broker", None) is not None:
         bridge_args = _bridge_args(args)
@@ -441,7 +488,9 @@ def run(args: argparse.Namespace) -> int:
     regions_dir = None
     with_regions = getattr(args, "regions", None) is not None
     if with_regions:
-        regions_dir, source, names = _region_source(args)
+        regions_dir, source, names = regions or _region_source(args)
+        if regions is not None:
+            regions_dir = None  # the caller removes it
     view_socket = _map_socket(view_bind, args.view_port) if getattr(args, "view", False) else None
     view_port = args.view_port if view_socket is not None else None
     if with_regions:
@@ -450,7 +499,8 @@ def run(args: argparse.Namespace) -> int:
                                              speed=args.speed, loop=args.loop, record=args.record,
                                              tracker_args=tracker_arguments(options), view_port=view_port,
                                              view_bind=view_bind, clock_period=args.clock_period,
-                                             foxglove_port=args.foxglove, on_disk_full=args.on_disk_full)
+                                             foxglove_port=args.foxglove, on_disk_full=args.on_disk_full,
+                                             **_site_options(network, args.listen))
         except ValueError as exc:
             if view_socket is not None:
                 view_socket.close()
@@ -470,6 +520,10 @@ def run(args: argparse.Namespace) -> int:
             if view_socket is not None:
                 view_socket.close()
             raise
+    elif network is not None:
+        from bintrack.hosts.mesh_links import hub_endpoint, short_lease
+
+        config = short_lease(router_config([args.listen, hub_endpoint(network, args.listen)]))
     else:
         config = router_config([args.listen])
     stack_id = f"up{os.getpid()}"
@@ -490,6 +544,10 @@ def run(args: argparse.Namespace) -> int:
                                      state_dir.name, STACK_OPTION, stack_id, *(("--socket-fd", str(view_socket.fileno()))
                                                        if c.name == "view" else ())])
                   for c in commands}
+    if network is not None:  # each site's processes on its host
+        for service in supervised.values():
+            if service.command.site:
+                service.argv = network.argv(service.command.site, service.argv)
     passed = {"view": (view_socket.fileno(),)} if view_socket is not None else {}
     monitor = Monitor(keys, ours={f"{stack_id}-{name}" for name in supervised},
                       stages={"sensor_agent": "transition", "peer_agent": "estimate",
@@ -520,6 +578,9 @@ def run(args: argparse.Namespace) -> int:
             pid = service.start(env, group, passed.get(service.command.name, ()))
             group = pid if group is None else group
         print(f"up: router on {args.listen}, network {net}, services: {', '.join(supervised)}", file=sys.stderr)
+        if network is not None:
+            print(f"up: hosts: {', '.join(f'{network.namespace(s)} ({network.address(s)})' for s in names)}, linked to "
+                  f"this machine's {network.tag} ({network.hub_address}) by a bridge in {network.switch}", file=sys.stderr)
         if not args.secure:
             print(OPEN_BUS.format(listen=args.listen, stack=stack_id), file=sys.stderr)
         before, t_before = Counter(), time.monotonic()

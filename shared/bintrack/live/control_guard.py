@@ -8,7 +8,8 @@ Zenoh attachment (:func:`control_attachment`), and admits ``control/progress/<se
 and ``control/done/<service>/<id>`` only from a holder of ``alive/<service>/<id>`` (or a
 former one: last words may arrive after the token's withdrawal). A clock tick
 may step at most :data:`MAX_STEPS` times the step its replay announced (its clock period, or
-the largest gap between a recording's ticks) past the last tick admitted. Anything else is
+the largest gap between a recording's ticks) past the last tick admitted (the first tick after
+the source's token came back may be anywhere). Anything else is
 rejected, counted and logged like a bad payload, naming the sender, and the run goes on.
 
 Without access control on the router the attachment is a claim, not a proof: a client that
@@ -88,6 +89,11 @@ class ControlGuard:
         if parsed.kind == "alive":
             who = f"{parsed.service}/{parsed.instance}"
             if present:
+                if who in self.departed and parsed.service in CLOCK_SOURCES:
+                    # its source came back after it was out of reach (a cut link): event time may
+                    # have gone on meanwhile (replay --no-hold, sensors in the field), so its next
+                    # tick starts afresh rather than being taken for a jump
+                    self.last_tick = None
                 self.alive.add(who)
             elif who in self.alive:
                 self.alive.discard(who)

@@ -20,10 +20,14 @@ log = logging.getLogger("bintrack")
 class ReplayGate:
     """Who replay waits for. ``wanted``: the ``--wait-for`` services (``NAME`` or ``NAME*N``, N
     live instances); ``router_lost()`` whether the session has lost its router; ``stopping``
-    is set when replay stops."""
+    is set when replay stops; ``hold``: whether event time is held while one of them is gone
+    once they were all there (``started``), or only the start waits for them."""
 
-    def __init__(self, wanted: list[str], router_lost: Callable[[], bool], stopping: asyncio.Event):
+    def __init__(self, wanted: list[str], router_lost: Callable[[], bool], stopping: asyncio.Event,
+                 hold: bool = True):
         self.wanted = wanted
+        self.hold = hold
+        self.started = False
         self.wanted_missing = list(wanted)  # those of them with no live instance
         self.router_lost = router_lost
         self.stopping = stopping
@@ -60,13 +64,14 @@ class ReplayGate:
         self.changed.set()
 
     def missing(self) -> list[str]:
-        """The --wait-for services with no live instance, and the router if it is lost."""
-        missing = self.wanted_missing
+        """The --wait-for services with no live instance (none once started, without ``hold``),
+        and the router if it is lost."""
+        missing = self.wanted_missing if self.hold or not self.started else []
         return missing + ["the router"] if self.router_lost() else missing
 
     def clear(self) -> bool:
         """Whether a sample may go out at once (nothing missing)."""
-        return not self.wanted_missing and not self.router_lost()
+        return not self.missing()
 
     async def until(self, condition: Callable[[], bool], waiting_for: Callable[[], str],
                     timeout: float | None = None) -> bool:

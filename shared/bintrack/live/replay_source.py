@@ -23,6 +23,9 @@ from bintrack.time_span import TimeSpan
 Put = Callable[[str, bytes, bytes | None], None]
 
 
+RECENT_SPAN = 30.0  # s of event time whose raw samples replay keeps at least, for ``recent``
+
+
 class ReplaySource:
     """The source at ``path`` (a ``.mcap`` recording, else a dataset folder); raises
     FormatError for a bad one (a corrupt recording too, unless ``salvage``): its deployment at
@@ -46,7 +49,7 @@ class ReplaySource:
         self.keys: Keys | None = None  # the keys it is played on (set by :meth:`play_on`)
         self.source_prefix = Keys(self.recording.net).prefix if self.recording is not None else None
         self.raw_keys: dict[str, str] = {}  # sensor id → its raw key
-        # (tick before it, key, payload) of the raw samples since the last few ticks, for ``recent``
+        # (tick before it, key, payload) of the raw samples of the last few ticks and RECENT_SPAN s, for ``recent``
         self.recent: deque[tuple[float, str, bytes]] = deque()
         self.recent_ticks: deque[float] = deque(maxlen=memory_ticks)
         self.last_tick: float | None = None
@@ -124,18 +127,21 @@ class ReplaySource:
         self.recent.append((-math.inf if self.last_tick is None else self.last_tick, key, payload))
 
     def ticked(self, t: float) -> None:
-        """After the tick at ``t`` (s): forget samples older than any consumer can still need (it
-        has acknowledged a tick at most max_ahead ticks back)."""
+        """After the tick at ``t`` (s): forget samples older than any live consumer can still need
+        (it has acknowledged a tick at most max_ahead ticks back) and than :data:`RECENT_SPAN`
+        (what a consumer that was out of reach, its link cut, may still ask for)."""
         self.last_tick = t
         self.recent_ticks.append(t)
-        oldest = self.recent_ticks[0]
+        oldest = min(self.recent_ticks[0], t - RECENT_SPAN)
         while self.recent and self.recent[0][0] < oldest:
             self.recent.popleft()
 
     def recent_answer(self, after: float) -> list[bytes]:
         """``control/recent?after=T``: each raw sample published after the tick at ``after`` (s),
-        in order, then a ``Clock`` (the last tick published, 0 before the first) that ends the
-        answer, so the asker knows it is complete."""
+        in order, then a ``Clock`` (the last tick published, 0 before the first, and every raw
+        sample published so far in ``sent``) that ends the answer, so the asker knows it is
+        complete, and can tell from the ``sent`` of the tick at ``after`` how many samples since
+        are no longer held."""
         answer = [payload for tick, _, payload in self.recent if tick >= after]
-        answer.append(encode(Clock(t=0.0 if self.last_tick is None else self.last_tick)))
+        answer.append(encode(Clock(t=0.0 if self.last_tick is None else self.last_tick, sent=self.raw_published)))
         return answer

@@ -18,6 +18,7 @@ class ServiceCommand:
     name: str
     args: tuple[str, ...]
     label: str = ""  # unique in a stack where a service runs more than once (default: name)
+    site: str = ""  # the region whose site runs it, "" for the hub's (what `up --hosts` puts in a namespace)
 
     @property
     def key(self) -> str:
@@ -121,22 +122,28 @@ def region_stack_commands(*, regions: list[str], endpoint: str, net: str, source
                           speed: float = 1.0, loop: bool = False, record: str | None = None,
                           tracker_args: tuple[str, ...] = (), view_port: int | None = None,
                           view_bind: str = "127.0.0.1", clock_period: float | None = None,
-                          foxglove_port: int | None = None, on_disk_full: str = "stop") -> list[ServiceCommand]:
+                          foxglove_port: int | None = None, on_disk_full: str = "stop",
+                          routers: list[str] | None = None, hub: str | None = None,
+                          router_args: tuple[str, ...] = ()) -> list[ServiceCommand]:
     """The stack of a deployment cut into ``regions`` (mcmcda at the base stations): per region
-    a router (meshed with the hub router at ``endpoint`` and the regions' routers before it), a
-    sensor agent and a base station on that router; then on the hub the merge, the recorder if
-    ``record``, the view if ``view_port`` and the replay of ``source``, which waits for all
-    (``clock_period``: its ``--clock-period``, s, None for its default)."""
-    routers = region_endpoints(endpoint, len(regions))
+    a router (meshed with the hub router and the regions' routers before it), a sensor agent
+    and a base station on that router, each labelled with its region's site; then on the hub
+    the merge, the recorder if ``record``, the view if ``view_port`` and the replay of
+    ``source``, which waits for all (``clock_period``: its ``--clock-period``, s, None for its
+    default). The hub's services connect to ``endpoint``; the region routers listen on
+    ``routers`` (default: :func:`region_endpoints` on loopback), reach the hub router at ``hub``
+    (default ``endpoint``) and take the further options ``router_args``."""
+    routers = routers or region_endpoints(endpoint, len(regions))
     services = []
     for i, region in enumerate(regions):
-        mesh = [a for peer in (endpoint, *routers[:i]) for a in ("-e", peer)]
-        services.append(ServiceCommand("router", ("-l", routers[i], *mesh, "--name", region), f"router-{region}"))
+        mesh = [a for peer in (hub or endpoint, *routers[:i]) for a in ("-e", peer)]
+        services.append(ServiceCommand("router", ("-l", routers[i], *mesh, "--name", region, *router_args),
+                                       f"router-{region}", region))
     for i, region in enumerate(regions):
         bus = ("-e", routers[i], "--net", net)
-        services.append(ServiceCommand("sensor_agent", ("--region", region, *bus), f"sensor_agent-{region}"))
+        services.append(ServiceCommand("sensor_agent", ("--region", region, *bus), f"sensor_agent-{region}", region))
         services.append(ServiceCommand("basestation", ("--tracker", "mcmcda", "--region", region, *tracker_args,
-                                                       *bus), f"basestation-{region}"))
+                                                       *bus), f"basestation-{region}", region))
     bus = ("-e", endpoint, "--net", net)
     services.append(ServiceCommand("merge", bus))
     services += _recorder_and_view(record, loop and source is not None, view_port, view_bind, bus, foxglove_port,

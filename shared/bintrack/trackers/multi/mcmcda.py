@@ -35,11 +35,14 @@ from __future__ import annotations
 import math
 import random
 from collections import deque
+from dataclasses import replace
 
 from bintrack.bus_payloads import PositionReports, TrackSet
+from bintrack.errors import TrackerConfigError
 from bintrack.trackers.multi.mcmcda_checkpoint import upgrade_checkpoint
 from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
 from bintrack.trackers.multi.mcmcda_moves import ChainMoves
+from bintrack.trackers.multi.mcmcda_rates import RateEstimate
 from bintrack.trackers.multi.mcmcda_window import Anchor, ChainTrack, Gate, ScanWindow, WindowReport
 from bintrack.trackers.multi.track_identity import TrackIdentity
 
@@ -51,7 +54,9 @@ class OnlineMCMCDA(ScanWindow, ChainMoves, TrackIdentity):
     the moves (:class:`ChainMoves`) and the identity policy (:class:`TrackIdentity`); here are
     the posterior's scores and the chain that runs the moves."""
 
-    def __init__(self, config: MCMCDAConfig = MCMCDAConfig(), tracker_name: str = "mcmcda"):
+    def __init__(self, config: MCMCDAConfig = MCMCDAConfig(), tracker_name: str = "mcmcda",
+                 area: float | None = None):
+        """``area``: the field's area, units² (for ``config.adapt_rates``, which needs it)."""
         self.config = config
         self.name = tracker_name
         self._rng = random.Random(config.seed)
@@ -67,6 +72,11 @@ class OnlineMCMCDA(ScanWindow, ChainMoves, TrackIdentity):
         self._next_identity = 1
         self._log_lf = math.log(config.false_alarm_rate)
         self._log_lb = math.log(config.birth_rate)
+        self._rates = None
+        if config.adapt_rates:
+            if not area or area <= 0:
+                raise TrackerConfigError("MCMCDA adapt_rates needs the field's area")
+            self._rates = RateEstimate(config.pd, config.false_alarm_rate, area, config.adapt_rates)
         self.last_score = 0.0
 
     # the chain's scratch tables, made afresh for each scan's chain (_run_chain)
@@ -97,6 +107,9 @@ class OnlineMCMCDA(ScanWindow, ChainMoves, TrackIdentity):
         self._scans.append((self._scan, scan.t, ids))
         while len(self._scans) > self.config.window:
             self._fix_oldest()
+        if self._rates is not None:  # this scan's chain scores with the estimates (mcmcda_rates)
+            self.config = replace(self.config, pd=self._rates.pd, false_alarm_rate=self._rates.false_alarm_rate)
+            self._log_lf = math.log(self.config.false_alarm_rate)
         self._expire_anchors()
         self._add_gates(ids)
         self._run_chain()

@@ -65,6 +65,10 @@ class MCMCDAConfig:
     """xmin, ymin, xmax, ymax (units) of the room for ``birth_edge``; None: no room"""
     birth_inside: float = 0.1
     """λ_b farther than ``birth_edge`` from the edge, as a fraction of λ_b near it"""
+    adapt_rates: int = 0
+    """scans of settled evidence behind online estimates of ``pd`` and ``false_alarm_rate``
+    (:mod:`.mcmcda_rates`; the configured values are their prior); 0: the configured values
+    throughout"""
 
     def in_units(self, metres_per_unit: float) -> MCMCDAConfig:
         """This configuration, read as metres and seconds, in units of ``metres_per_unit`` m:
@@ -83,7 +87,8 @@ class MCMCDAConfig:
                   ("false_alarm_rate", self.false_alarm_rate > 0), ("birth_rate", self.birth_rate > 0),
                   ("max_speed", self.max_speed > 0), ("initial_speed", self.initial_speed > 0),
                   ("process_noise", self.process_noise > 0), ("extra_variance", self.extra_variance >= 0),
-                  ("gate_sigmas", self.gate_sigmas > 0), ("coast", self.coast >= 0), ("reidentify", self.reidentify >= 0), ("min_reports", self.min_reports >= 2)]
+                  ("gate_sigmas", self.gate_sigmas > 0), ("coast", self.coast >= 0), ("reidentify", self.reidentify >= 0), ("min_reports", self.min_reports >= 2),
+                  ("adapt_rates", self.adapt_rates >= 0)]
         bad = [name for name, ok in checks if not ok]
         if bad:
             raise TrackerConfigError(f"MCMCDA parameter out of range: {', '.join(f'{n}={getattr(self, n)}' for n in bad)}")

@@ -80,6 +80,14 @@ class ScanWindow:
     def _fix_oldest(self) -> None:
         k, t, ids = self._scans.popleft()
         gone = set(ids)
+        if self._rates is not None:  # before fixing: which tracks have a report at scan k
+            used = sum(1 for track in self._tracks if gone.intersection(track.reports))
+            # a track's first report is a detection by construction: only tracks begun before k
+            # (with an anchor) and going on after it count as present there
+            hits = sum(1 for track in self._tracks if track.anchor is not None and gone.intersection(track.reports))
+            missed = sum(1 for track in self._tracks if track.anchor is not None and track.reports
+                         and not gone.intersection(track.reports))
+            self._rates.observe(hits, hits + missed, len(ids) - used)
         for track in self._tracks:
             fixed = [r for r in track.reports if r in gone]
             if not fixed:

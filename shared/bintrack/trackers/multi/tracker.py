@@ -42,7 +42,9 @@ class MCMCDATracker:
     def __init__(self, deployment: Deployment, fusion: FusionConfig = FusionConfig(),
                  config: MCMCDAConfig = MCMCDAConfig(), peer: Tracker | None = None):
         self.fusion = ScanFusion(deployment, fusion)
-        self.mcmcda = OnlineMCMCDA(config.in_units(deployment.metres_per_unit), self.name)
+        region = deployment.region
+        self.mcmcda = OnlineMCMCDA(config.in_units(deployment.metres_per_unit), self.name,
+                                   area=(region.xmax - region.xmin) * (region.ymax - region.ymin))
         self._track_aided = fusion.clustering == "fit" and fusion.track_aided
         self.peer = peer
         self._ranges = {s.id: s.range for s in deployment.sensors if hasattr(s, "range")}
