@@ -60,9 +60,10 @@ class ReplayPlayer:
         marked :data:`RESENT`. The killed instance checkpointed each tick once it had put it,
         but what it put last may still have been in its send path; every consumer has
         acknowledged the ticks before these, so nothing older can be missing. How many."""
-        for _, key, payload in self.source.recent:
+        again = self.source.last_ticks()
+        for key, payload in again:
             self.put(key, payload, RESENT)
-        return len(self.source.recent)
+        return len(again)
 
     def _ticked(self, t: float, save: bool = True) -> None:
         """After the tick at ``t`` (s): trim the source's memory and checkpoint the position."""

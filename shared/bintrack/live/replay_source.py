@@ -136,6 +136,13 @@ class ReplaySource:
         while self.recent and self.recent[0][0] < oldest:
             self.recent.popleft()
 
+    def last_ticks(self) -> list[tuple[str, bytes]]:
+        """(key, payload) of the raw samples put since the oldest of the last few ticks (what a
+        consumer may not have acknowledged yet), in order: what a restarted replay sends again
+        (not the whole RECENT_SPAN kept for ``recent``)."""
+        oldest = self.recent_ticks[0] if self.recent_ticks else -math.inf
+        return [(key, payload) for tick, key, payload in self.recent if tick >= oldest]
+
     def recent_answer(self, after: float) -> list[bytes]:
         """``control/recent?after=T``: each raw sample published after the tick at ``after`` (s),
         in order, then a ``Clock`` (the last tick published, 0 before the first, and every raw
