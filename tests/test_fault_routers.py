@@ -20,14 +20,19 @@ from test_faults import Up, children, cut, exported_tracks
 SEED = 21  # a simulated field cut into two regions; not a seed the merge's defaults were chosen on
 
 
-@pytest.fixture(scope="module")
-def regions_field(tmp_path_factory) -> tuple[Path, list]:
-    """The first 40 s of a simulated darpa-grid field with two regions, and its offline rows."""
-    folder = tmp_path_factory.mktemp("regions")
-    bintrack("simulate", "darpa-grid", "--out", "whole", "--regions", "2", "--seed", str(SEED), cwd=folder, check=True)
+def region_field(folder: Path, regions: str, seed: int) -> tuple[Path, list]:
+    """In ``folder``: the first 40 s of a simulated darpa-grid field cut into ``regions``
+    (``simulate --regions``), and its offline rows (mcmcda by region, merged)."""
+    bintrack("simulate", "darpa-grid", "--out", "whole", "--regions", regions, "--seed", str(seed), cwd=folder, check=True)
     field = cut(folder / "whole", folder / "field", 40.0)
     bintrack("track", str(field), "--tracker", "mcmcda", "--regions", "--out", "offline.csv", cwd=folder, check=True)
     return field, read_tracks(folder / "offline.csv")
+
+
+@pytest.fixture(scope="module")
+def regions_field(tmp_path_factory) -> tuple[Path, list]:
+    """The first 40 s of a simulated darpa-grid field with two regions, and its offline rows."""
+    return region_field(tmp_path_factory.mktemp("regions"), "2", SEED)
 
 
 @pytest.mark.parametrize("victims, speed", [pytest.param(v, speed, id=f"{'+'.join(v)}-speed{speed}") for v, speed in (

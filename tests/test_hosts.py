@@ -24,7 +24,7 @@ import pytest
 import zenoh
 
 from bintrack.bus_payloads import TrackSet
-from bintrack.formats import open_dataset, read_tracks
+from bintrack.formats import open_dataset
 from bintrack.hosts.mesh_links import hub_endpoint, router_options, site_endpoints
 from bintrack.hosts.netns import NetnsError, ip, namespaces, unavailable
 from bintrack.hosts.site_network import PREFIX, SiteNetwork, leftovers
@@ -34,7 +34,8 @@ from bintrack.message_codec import decode
 from bintrack.live.stack import region_stack_commands
 
 from support import HUNG, REPO, bintrack, free_port, wait_logged
-from test_faults import Up, children, cut, exported_tracks
+from test_fault_routers import region_field
+from test_faults import Up, children, exported_tracks
 
 SEED = 21  # a simulated 2 × 2 field; not a seed the merge's defaults were chosen on
 LAN = ipaddress.IPv4Network("198.18.0.0/15")
@@ -44,11 +45,7 @@ needs_namespaces = pytest.mark.skipif(unavailable() is not None, reason=f"no net
 @pytest.fixture(scope="module")
 def regions_field(tmp_path_factory) -> tuple[Path, list]:
     """The first 40 s of a simulated darpa-grid field cut into 2 × 2 regions, and its offline rows."""
-    folder = tmp_path_factory.mktemp("hosts")
-    bintrack("simulate", "darpa-grid", "--out", "whole", "--regions", "2x2", "--seed", str(SEED), cwd=folder, check=True)
-    field = cut(folder / "whole", folder / "field", 40.0)
-    bintrack("track", str(field), "--tracker", "mcmcda", "--regions", "--out", "offline.csv", cwd=folder, check=True)
-    return field, read_tracks(folder / "offline.csv")
+    return region_field(tmp_path_factory.mktemp("hosts"), "2x2", SEED)
 
 
 def made_by(tag: str) -> list[str]:
