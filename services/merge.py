@@ -29,10 +29,9 @@ from bintrack.keys import ParsedKey, parse_key
 from bintrack.live.checkpoint import MergeCheckpoint
 from bintrack.live.service import Service, log, service_main
 from bintrack.live.session_options import add_bus_arguments
-from bintrack.live.track_history import TrackHistory
-from bintrack.live.watermark import DEPARTED_HOLD
+from bintrack.live.region_departures import RegionDepartures
+from bintrack.live.track_history import TrackHistory, fetch_region_tracks
 from bintrack.bus_payloads import Clock, TrackSet
-from bintrack.message_codec import MessageError, decode
 from bintrack.regions import RegionMap
 from bintrack.trackers.multi.region_merge import MergeConfig, RegionMerge
 
@@ -45,9 +44,8 @@ class Merge(Service):
         self.regions: RegionMap | None = None
         self.merge: RegionMerge | None = None
         self.tracks = TrackHistory(self.keys.tracks())
-        self.departed: dict[str, float | None] = {}  # region gone → the first tick (s) after it went
+        self.departures = RegionDepartures(self.name)
         self.sent = 0  # track sets published, in each progress report
-        self.late: dict[str, list[float]] = {}  # region → times of its scans that came after their time was merged
 
     async def setup(self) -> None:
         deployment = await self.wait_for_deployment()
@@ -85,17 +83,9 @@ class Merge(Service):
         return True
 
     def fetch_region_tracks(self, after: float, regions=None) -> list[tuple[str, TrackSet]]:
-        """(region, scan) of every scan later than ``after`` (s) that the base stations of
-        ``regions`` (default: all) still hold (their ``tracks?after=T`` queryables); blocking."""
-        fetched = []
-        for region in regions or self.regions.names:
-            key = self.keys.region_tracks(region)
-            for payload in self.query(f"{key}?after={after!r}", timeout=2.0):
-                try:
-                    fetched.append((region, decode(TrackSet, payload)))
-                except MessageError as exc:
-                    self.bad.report(key, exc.reason)
-        return fetched
+        """The scans later than ``after`` (s) that the base stations of ``regions`` (default:
+        all) still hold (:func:`~bintrack.live.track_history.fetch_region_tracks`); blocking."""
+        return fetch_region_tracks(self.query, self.keys, regions or self.regions.names, after, self.bad.report)
 
     async def on_router_back(self) -> None:
         if self.merge is not None:
@@ -121,24 +111,11 @@ class Merge(Service):
         tracks = self.decode(TrackSet, sample) if region is not None else None
         if tracks is None:
             return
-        if tracks.t <= self.merge.emitted_up_to:
-            self.late.setdefault(region, []).append(tracks.t)
-        else:
-            self.say_late(region)
+        self.departures.scan(region, tracks.t, self.merge.emitted_up_to)
         self.emit(self.merge.add(region, tracks))
 
-    def say_late(self, region: str) -> None:
-        """Name the scans of ``region`` that came after the merged scans of their time went out
-        (a region cut off while event time went on, catching up): left out, not merged silently."""
-        times = self.late.pop(region, None)
-        if times:
-            log.warning("%s: %d scans of region %s (t=%g–%g s) came after the merged scans of their time had been "
-                        "published; left out (those merged scans show its last tracks, stale once it was given up)",
-                        self.name, len(times), region, min(times), max(times))
-
     def finish(self, t: float) -> None:
-        for region in list(self.late):
-            self.say_late(region)
+        self.departures.finish()
         self.emit(self.merge.finish())
 
     def on_region_progress(self, sample: zenoh.Sample) -> None:
@@ -155,8 +132,7 @@ class Merge(Service):
         if region is None:
             return
         if present:
-            if region in self.merge.stale or region in self.departed:
-                self.departed.pop(region, None)
+            if self.departures.back(region, region in self.merge.stale):
                 # what it published while its link was down: fetched before its progress can
                 # release the scans (a reply takes milliseconds: the loop waits on purpose)
                 fetched = self.fetch_region_tracks(self.merge.emitted_up_to, [region])
@@ -167,10 +143,7 @@ class Merge(Service):
             self.merge.back(region)
             return
         latest = self.tracks.latest
-        shown = sum(1 for tr in (latest.tracks if latest else ()) if tr.region == region)
-        log.warning("%s: region %s's base station is gone; its %d tracks are marked stale unless it is back within "
-                    "%g s of event time", self.name, region, shown, DEPARTED_HOLD)
-        self.departed[region] = None
+        self.departures.went(region, sum(1 for tr in (latest.tracks if latest else ()) if tr.region == region))
 
     def on_clock(self, sample: zenoh.Sample) -> None:
         """A tick: a region gone for DEPARTED_HOLD s of event time past the first tick after it
@@ -179,13 +152,8 @@ class Merge(Service):
         tick = self.decode(Clock, sample)
         if tick is None:
             return
-        lead = max(self.guard.steps.values(), default=0.0)
-        for region, since in list(self.departed.items()):
-            if since is None:
-                self.departed[region] = tick.t
-            elif tick.t >= since + DEPARTED_HOLD + lead:
-                del self.departed[region]
-                self.emit(self.merge.lost(region))
+        for region in self.departures.tick(tick.t, max(self.guard.steps.values(), default=0.0)):
+            self.emit(self.merge.lost(region))
         self.report_progress(tick.t, sent=self.sent)
 
     def emit(self, merged: list[TrackSet]) -> None:

@@ -20,21 +20,19 @@ stopped`` it reports done and keeps recording until stopped.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import logging
-import time
 from pathlib import Path
 
 import zenoh
 
 from bintrack.argtypes import positive_float, size_bytes
 from bintrack.errors import CommandError
-from bintrack.keys import ParsedKey
 from bintrack.live.checkpoint import RecorderCheckpoint
 from bintrack.live.disk_full import MODES, DiskFull
-from bintrack.live.end_of_stream import UpstreamDone
-from bintrack.live.record_filter import RESULTS, RecordFilter
+from bintrack.live.record_filter import RecordFilter
+from bintrack.live.recording_end import RecordingEnd
 from bintrack.live.recording_files import RecordingFiles
+from bintrack.live.recording_sink import RecordingSink
 from bintrack.live.service import Service, service_main
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.live.track_ledger import TRACK_SOURCES, TrackRefill
@@ -43,7 +41,6 @@ from bintrack.live.foxglove_export import write_foxglove_copy
 log = logging.getLogger("bintrack")
 
 UPSTREAM = ("sensor_agent", "peer_agent", "basestation", "merge")
-WAIT_LOG_INTERVAL = 5.0  # s of wall clock between "still waiting" lines
 
 
 def add_arguments(parser: argparse.ArgumentParser, until_default: str = "eos", net_default: str | None = "default") -> None:
@@ -88,169 +85,79 @@ class Recorder(Service):
         if not out.parent.is_dir():
             raise CommandError(f"--out {args.out}: folder {out.parent} does not exist")
         super().__init__(args)
-        self.files: RecordingFiles | None = None
         self.filter = RecordFilter(self.bad.report)
-        self.upstream = UpstreamDone(UPSTREAM)
-        self.eos: float | None = None
-        self.last_tracks = float("-inf")  # event time of the newest track set recorded
-        self.disk = DiskFull(args.on_disk_full, self._give_up)
-        self.last_tick: float | None = None  # the newest clock tick recorded (its progress is owed while paused)
+        self.sink = RecordingSink(self.filter, DiskFull(args.on_disk_full, self._give_up), self.bad.report,
+                                  self.report_progress, lambda part: self.checkpoints.save(RecorderCheckpoint(part)))
         # track sets the file may lack after a restart or a router outage
-        self.refill = TrackRefill(self.keys.tracks(), self.query, self._record_fetched, self.bad.report,
+        self.refill = TrackRefill(self.keys.tracks(), self.query, self.sink.record_fetched, self.bad.report,
                                   lambda: any(self.presence.holders(s) for s in TRACK_SOURCES))
-        self._changed = asyncio.Event()
+        self.end = RecordingEnd(UPSTREAM, self.sink, self.refill, self.report_done, args.until == "eos", self.stopping)
 
     async def setup(self) -> None:
         deployment = await self.wait_for_deployment()
         if deployment is None:
             return
         checkpoint = self.checkpoints.load(RecorderCheckpoint)
-        self.files = files = RecordingFiles(self.args.out, deployment, self.args.net,
-                                            checkpoint.part if checkpoint is not None else 0,
-                                            self.args.split_size, self.args.split_duration,
-                                            on_finalised=write_foxglove_copy if self.args.foxglove else None)
+        files = RecordingFiles(self.args.out, deployment, self.args.net,
+                               checkpoint.part if checkpoint is not None else 0,
+                               self.args.split_size, self.args.split_duration,
+                               on_finalised=write_foxglove_copy if self.args.foxglove else None)
         try:
-            aside = files.open(resume=checkpoint is not None)  # keep what the previous instance recorded
+            restarted = self.sink.open(files, resume=checkpoint is not None)
         except OSError as exc:
             log.error("recorder: cannot write %s: %s", files.path, exc.strerror or exc)
             self.exit_status = 2
             self.stop()
             return
-        self.checkpoints.save(RecorderCheckpoint(files.part))
-        if aside is not None:
-            kept, last_t, self.last_tracks = files.copy_from(aside, self._copied)
-            self.filter.last_t = max(self.filter.last_t, last_t)
-            aside.unlink()
-            log.info("recorder: restarted; kept the %d messages recorded before (up to t=%g s)", kept,
-                     self.filter.last_t)
-            self.refill.start(self.last_tracks)
-            self.filter.restarted()
-        self.follow_presence(self._on_presence)
+        if restarted:
+            self.refill.start(self.sink.last_tracks)
+        self.follow_presence(self.end.on_presence)
+        self.follow_presence(self.filter.on_presence)
         self.subscribe(self.keys.all(), self._on_sample)
         log.info("recorder: recording %s into %s", self.keys.all(), files.path)
 
-    def _copied(self, record) -> None:
-        if record.kind in RESULTS:
-            self.filter.kept(record.key, record.payload, record.t, record.kind)
-
-    def _record_fetched(self, key: str, tracks, payload: bytes, n: int) -> bool:
-        if self.files.closed or self.filter.tracks.held(key, tracks.t, payload) >= n:
-            return False
-        self.filter.kept(key, payload, tracks.t, "tracks")
-        self.files.writer.write(key, tracks.t, payload, time.time_ns())
-        self.last_tracks = max(self.last_tracks, tracks.t)
-        return True
-
     async def on_router_back(self) -> None:
-        if not (self.files is None or self.files.closed):
-            self.refill.start(self.last_tracks)
-
-    def _on_presence(self, parsed: ParsedKey, present: bool) -> None:
-        self.upstream.on_presence(parsed, present)
-        self.filter.on_presence(parsed, present)
-        self._changed.set()
+        if not self.sink.closed:
+            self.refill.start(self.sink.last_tracks)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        if self.files is None or self.files.closed:
+        if self.sink.closed:
             return
         key, payload = str(sample.key_expr), sample.payload.to_bytes()
         self.refill.progress(key, payload)
         admitted = self.filter.admit(key, payload, None if sample.attachment is None else sample.attachment.to_bytes())
-        if admitted is None:
+        if admitted is None or not self.sink.write(admitted, key, payload):
             return
-        kind, t = admitted.parsed.kind, admitted.t
-        if kind == "clock" and not self.disk.paused:  # a new file starts with a clock tick
-            # a split that fails ends the recording even under pause: the old file is half finalised
-            if not self.disk.attempt(self.files.writer, lambda: self._split(t), stopping=True) or self.files.closed:
-                return
-        self.filter.check_gap(kind, t, self.files.path)
-        try:
-            self.files.writer.write(key, t, payload, time.time_ns())
-        except ValueError as exc:
-            self.bad.report(key, f"unrecordable: {exc}")
-            return
-        self.filter.recorded(admitted, key, payload)
-        if kind == "tracks":
-            self.last_tracks = max(self.last_tracks, t)
-        elif kind == "clock":
-            self.refill.tick(t)
-            self.last_tick = admitted.message.t
-            if not self.disk.paused and self.disk.attempt(self.files.writer, lambda: self.files.tick(t)):
-                self.report_progress(self.last_tick)  # none while paused: replay holds event time
+        kind = admitted.parsed.kind
+        if kind == "clock":
+            self.refill.tick(admitted.t)
+            self.sink.ticked(admitted)
         elif kind == "eos":
-            self.eos = admitted.message.t
-            self._changed.set()
+            self.end.on_eos(admitted.message.t)
         elif kind == "done":
-            self.upstream.on_done(admitted.parsed.service, admitted.parsed.instance, admitted.message.t)
-            self._changed.set()
-
-    def _split(self, t: float) -> None:
-        if self.files.split_before(t):
-            self.checkpoints.save(RecorderCheckpoint(self.files.part))
+            self.end.on_done(admitted.parsed.service, admitted.parsed.instance, admitted.message.t)
 
     def _give_up(self, status: int) -> None:
         self.exit_status = status
         self.stop()
 
-    async def _retry_while_paused(self) -> None:
-        """While paused (--on-disk-full pause): write what is held until it goes; then the
-        progress owed."""
-        await self.disk.retry_while_paused(self.files.writer, self.stopping, self._progress_owed)
-
-    def _progress_owed(self) -> None:
-        if self.last_tick is not None:
-            self.report_progress(self.last_tick)
-
     def stop(self) -> None:
         super().stop()
-        self._changed.set()
+        self.end.changed.set()
 
     async def main(self) -> None:
-        last_said = time.monotonic()
-        while not self.stopping.is_set():
-            if self.eos is not None and self.upstream.complete:
-                await self.refill.finish()
-                eos, self.eos = self.eos, None
-                if self.args.until == "eos":
-                    while not self._finalise() and self.disk.paused:
-                        await self._retry_while_paused()
-                    if not self.disk.gave_up:
-                        self.report_done(eos)
-                    return
-                if not self.disk.attempt(self.files.writer, self.files.writer.flush):
-                    self.eos = eos  # reported done once it is on disk (paused), or never (gave up)
-                    continue
-                self.report_done(eos)
-                self.upstream.done.clear()
-                log.info("recorder: end of stream at t=%g s recorded; recording on", eos)
-            self._changed.clear()
-            if self.disk.paused:
-                await self._retry_while_paused()
-                continue
-            try:
-                await asyncio.wait_for(self._changed.wait(), WAIT_LOG_INTERVAL)
-            except TimeoutError:
-                if self.eos is not None and time.monotonic() - last_said >= WAIT_LOG_INTERVAL:
-                    owing = ", ".join(f"{s}/{i}" for s, i in self.upstream.owing())
-                    log.info("recorder: end of stream seen; waiting for done from %s", owing)
-                    last_said = time.monotonic()
-
-    def _finalise(self) -> bool:
-        """Finalise the file (once stopping, whatever the disk allows); whether it is done."""
-        if self.files is None or self.files.closed:
-            return True
-        return self.disk.attempt(self.files.writer, self.files.finalise, stopping=self.stopping.is_set())
+        await self.end.run()
 
     async def teardown(self) -> None:
-        if self.files is None and self.exit_status == 0:
+        if self.sink.files is None and self.exit_status == 0:
             log.info("recorder: stopped before the deployment was known; nothing recorded")
-        self._finalise()
+        self.sink.finalise(self.stopping.is_set())
 
     def run(self) -> int:
         try:
             return super().run()
         finally:
-            self._finalise()  # whatever went wrong, never leave the file unfinalised
+            self.sink.finalise(self.stopping.is_set())  # whatever went wrong, never leave the file unfinalised
 
 
 def main(argv: list[str] | None = None) -> int:

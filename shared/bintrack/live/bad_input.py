@@ -1,10 +1,16 @@
-"""A service's accounting of the bad payloads it refused."""
+"""A service's accounting of the bad payloads it refused, and the decoding that refuses them."""
 
 from __future__ import annotations
 
 import logging
 from collections import defaultdict
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+from bintrack.message_codec import MessageError, decode, decode_view
+
+if TYPE_CHECKING:
+    import zenoh
 
 MAX_SENDERS_LOGGED = 1024  # distinct senders of bad payloads named in the log; past that only counted
 
@@ -35,3 +41,11 @@ class BadInput:
     def total(self) -> int:
         return sum(self.counts.values())
 
+    def decode(self, cls: type, sample: zenoh.Sample, view: bool = False):
+        """The ``cls`` message in ``sample``, or None (reported) if it is bad; with ``view``, a hot
+        message comes as a read-only view (:func:`bintrack.message_codec.decode_view`)."""
+        try:
+            return (decode_view if view else decode)(cls, sample.payload.to_bytes())
+        except MessageError as exc:
+            self.report(str(sample.key_expr), exc.reason)
+            return None

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 
-from bintrack.keys import ParsedKey
+from bintrack.bus_payloads import EndOfStream as EndOfStreamMessage
+from bintrack.keys import ParsedKey, parse_key
 
 
 class UpstreamDone:
@@ -51,6 +52,26 @@ class EndOfStream:
         self.report_done = report_done
         self.eos: float | None = None
         self.finished = False
+
+    def follow(self, service) -> EndOfStream:
+        """Hear ``service``'s (a :class:`~bintrack.live.service.Service`) liveliness tokens, done
+        reports and ``control/eos``, a bad payload counted by ``service.decode``; returns self."""
+
+        def on_done(sample) -> None:
+            message = service.decode(EndOfStreamMessage, sample)
+            if message is not None:
+                parsed = parse_key(str(sample.key_expr))
+                self.on_done(parsed.service, parsed.instance, message.t)
+
+        def on_eos(sample) -> None:
+            message = service.decode(EndOfStreamMessage, sample)
+            if message is not None:
+                self.on_eos(message.t)
+
+        service.follow_presence(self.on_presence)
+        service.subscribe(service.keys.done(), on_done)
+        service.subscribe(service.keys.eos(), on_eos)
+        return self
 
     def on_presence(self, parsed: ParsedKey, present: bool) -> None:
         self.upstream.on_presence(parsed, present)

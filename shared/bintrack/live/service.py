@@ -27,7 +27,7 @@ from typing import Any
 import zenoh
 
 from bintrack.errors import CommandError
-from bintrack.keys import Keys, parse_key
+from bintrack.keys import Keys
 from bintrack.live.bad_input import BadInput
 from bintrack.live.checkpoint import Checkpointer
 from bintrack.live.control_guard import ControlGuard
@@ -40,9 +40,8 @@ from bintrack.live.presence import OwnToken, Presence, token_present
 from bintrack.live.progress_reports import ProgressReports
 from bintrack.live.router_watch import RouterWatch
 from bintrack.live.session_options import DEFAULT_MAX_PAYLOAD, open_session, zenoh_config
-from bintrack.bus_payloads import EndOfStream as EndOfStreamMessage
 from bintrack.message_base import Message
-from bintrack.message_codec import MessageError, decode, decode_view, encode
+from bintrack.message_codec import encode
 
 log = logging.getLogger("bintrack")
 
@@ -145,20 +144,12 @@ class Service:
 
     def decode(self, cls: type, sample: zenoh.Sample):
         """The message in ``sample``, or None (counted and logged once per sender) if bad."""
-        try:
-            return decode(cls, sample.payload.to_bytes())
-        except MessageError as exc:
-            self.bad.report(str(sample.key_expr), exc.reason)
-            return None
+        return self.bad.decode(cls, sample)
 
     def read(self, cls: type, sample: zenoh.Sample):
         """As :meth:`decode`, but a hot message (RawSample, Transition, Clock, EndOfStream) comes
         as a read-only view with the same fields (:func:`bintrack.message_codec.decode_view`)."""
-        try:
-            return decode_view(cls, sample.payload.to_bytes())
-        except MessageError as exc:
-            self.bad.report(str(sample.key_expr), exc.reason)
-            return None
+        return self.bad.decode(cls, sample, view=True)
 
     def query(self, key_expr: str, timeout: float = 2.0) -> list[bytes]:
         """Payloads of every reply to a get on ``key_expr``, in order (no consolidation: replies
@@ -188,23 +179,7 @@ class Service:
         """Once ``control/eos`` has arrived and every live instance of the ``upstream`` services
         has reported done, call ``finish(t)`` (flush, publish the last results) and report done.
         A service with no live upstream finishes at EOS directly."""
-        end = EndOfStream(upstream, finish, self.report_done)
-
-        def on_done(sample: zenoh.Sample) -> None:
-            message = self.decode(EndOfStreamMessage, sample)
-            if message is not None:
-                parsed = parse_key(str(sample.key_expr))
-                end.on_done(parsed.service, parsed.instance, message.t)
-
-        def on_eos(sample: zenoh.Sample) -> None:
-            message = self.decode(EndOfStreamMessage, sample)
-            if message is not None:
-                end.on_eos(message.t)
-
-        self.follow_presence(end.on_presence)
-        self.subscribe(self.keys.done(), on_done)
-        self.subscribe(self.keys.eos(), on_eos)
-        return end
+        return EndOfStream(upstream, finish, self.report_done).follow(self)
 
     # -- lifecycle -------------------------------------------------------------------------
 

@@ -1,5 +1,5 @@
-"""The track sets a service published lately, and the ``tracks`` queryable that serves them
-(the base station's, the merge's)."""
+"""The track sets a service published lately, the ``tracks`` queryable that serves them (the
+base station's, the merge's), and the fetches from such queryables."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from collections.abc import Callable, Iterable
 import zenoh
 
 from bintrack.bus_payloads import TrackSet
+from bintrack.keys import Keys
 from bintrack.live.recording_files import FLUSH_SPAN
 from bintrack.message_codec import MessageError, decode, encode
 
@@ -72,4 +73,20 @@ def fetch_tracks_after(query: Callable[[str, float], list[bytes]], key: str, aft
         if tracks.t > after:
             fetched.append((tracks, payload))
             after = tracks.t
+    return fetched
+
+
+def fetch_region_tracks(query: Callable[[str, float], list[bytes]], keys: Keys, regions: Iterable[str],
+                        after: float, report: Callable[[str, str], None]) -> list[tuple[str, TrackSet]]:
+    """(region, scan) of every scan later than ``after`` (s) that the base stations of
+    ``regions`` still hold (their ``region/<r>/tracks?after=T`` queryables), as they answered;
+    a bad reply is reported. ``query(selector, timeout)`` is a blocking get."""
+    fetched = []
+    for region in regions:
+        key = keys.region_tracks(region)
+        for payload in query(f"{key}?after={after!r}", 2.0):
+            try:
+                fetched.append((region, decode(TrackSet, payload)))
+            except MessageError as exc:
+                report(key, exc.reason)
     return fetched
