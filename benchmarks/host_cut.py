@@ -33,8 +33,8 @@ from bintrack.live.session_options import client_config, router_config
 DEFAULT_LEASE_MS = 10_000  # Zenoh's own
 PROBE = """
 import sys, time, zenoh
-from bintrack.live.session_options import client_config
-session = zenoh.open(client_config([sys.argv[1]]))
+from bintrack.live.session_options import client_config, open_session
+session = open_session(client_config([sys.argv[1]]), 60.0, "probe")  # retried while its router starts
 token = session.liveliness().declare_token(sys.argv[2])
 def seen(sample):
     print(f"{str(sample.kind).rpartition('.')[2]} {sample.key_expr} {time.monotonic():.6f}", flush=True)
@@ -98,7 +98,6 @@ def run(lease_ms: int, args: argparse.Namespace) -> dict[str, list[float]]:
                 routers.append(subprocess.Popen(network.argv(site, [sys.executable, "-m", "bintrack.services.router",
                                                                     "-l", endpoints[i], *mesh, "--name", site, "--cfg",
                                                                     cfg]), stderr=subprocess.DEVNULL))
-            time.sleep(1.0)  # the mesh forms (a benchmark: no test waits here)
             probes.append(Probe([], hub_endpoint, "probe/hub", "probe/**"))
             probes.append(Probe(network.argv(cut_site, []), endpoints[-1], f"probe/{cut_site}", "probe/**"))
             hub_probe, site_probe = probes
