@@ -101,7 +101,7 @@ def run(lease_ms: int, args: argparse.Namespace) -> dict[str, list[float]]:
             probes.append(Probe([], hub_endpoint, "probe/hub", "probe/**"))
             probes.append(Probe(network.argv(cut_site, []), endpoints[-1], f"probe/{cut_site}", "probe/**"))
             hub_probe, site_probe = probes
-            if hub_probe.when("PUT", f"probe/{cut_site}", 0.0) is None:
+            if hub_probe.when("PUT", f"probe/{cut_site}", 0.0, timeout=600.0) is None:
                 raise RuntimeError("the site's token never reached the hub")
             for _ in range(args.cuts):
                 cut = time.monotonic()
