@@ -177,7 +177,6 @@ class SiteNetwork:
         stats = json.loads(ip("-s", "-j", "link", "show", "dev", name, namespace=namespace))[0]["stats64"]
         return {f"{way}_{what}": stats[way][what] for way in ("rx", "tx") for what in ("bytes", "packets")}
 
-
     def cut(self, site: str) -> None:
         """Take site ``site``'s link down (its bridge port): it is cut off from every other site."""
         ip("link", "set", "dev", f"p{self.sites.index(site)}", "down", namespace=self.switch)

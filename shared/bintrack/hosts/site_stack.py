@@ -11,6 +11,7 @@ Each process logs to a file of its own in ``log_dir``.
 
 from __future__ import annotations
 
+import socket
 import subprocess
 import sys
 import time
@@ -53,8 +54,8 @@ class SiteStack:
     ``net`` at ``speed`` (0: as fast as flow control allows), recorded into ``record`` if given.
     ``site_env``: region → environment variables for that site's processes; ``hold``: whether
     replay holds event time while a site's services are out of reach (``--no-hold`` if not);
-    ``port``: the routers' (default: one free now). Started on construction; :meth:`stop` ends every process and removes the network (also if
-    starting failed)."""
+    ``port``: the routers' (default: one free now). Started on construction; :meth:`stop` ends
+    every process and removes the network (also if starting failed)."""
 
     def __init__(self, regions: list[str], source: str, net: str, log_dir: Path, *, speed: float = 0.0,
                  record: Path | None = None, site_env: dict[str, dict[str, str]] | None = None, hold: bool = True,
@@ -106,8 +107,6 @@ class SiteStack:
 
 def _free_port() -> int:
     """A TCP port free on 127.0.0.1 and on the sites' LAN now."""
-    import socket
-
     with socket.socket() as sock:
         sock.bind(("0.0.0.0", 0))
         return sock.getsockname()[1]
