@@ -16,7 +16,11 @@ Per site, per event second, mean over the sites (min–max), beside N = 1:
   elsewhere: today every service subscribes to ``bintrack/<net>/**`` (one subscriber keeps a
   publisher's order across keys), so *in* is every message published elsewhere;
 * **bytes and packets** on the site's link, as the kernel counts them on its veth (Zenoh's
-  framing, keep-alives, declarations and queries included), received and sent.
+  framing, keep-alives, declarations and queries included), received and sent;
+* **messages needed in**, counted from the same messages: what the site's services would take
+  from elsewhere under the design of docs/design.md §11 (narrow subscriptions): the raw samples
+  of its own sensors, the transitions of its border band's sensors, the clock, the end of
+  stream and the sensor agents' progress and done reports.
 
 Needs root (network namespaces); says so in one line otherwise.
 """
@@ -76,6 +80,7 @@ class Census:
         self.regions = set(regions.names)
         self.counts: Counter = Counter()
         self.sizes: Counter = Counter()
+        self.by_key: Counter = Counter()
         self.lock = threading.Lock()
         self.keys = Keys(net)
 
@@ -95,6 +100,22 @@ class Census:
         with self.lock:
             self.counts[site] += 1
             self.sizes[site] += len(sample.payload)
+            self.by_key[str(sample.key_expr)] += 1
+
+    def needed(self, region: str, regions: RegionMap) -> int:
+        """Messages published outside ``region``'s site that its services would need under narrow
+        subscriptions (docs/design.md §11)."""
+        own, taken = set(regions.own_sensors(region)), set(regions.taken_sensors(region))
+        count = 0
+        for key, n in self.by_key.items():
+            parsed = parse_key(key)
+            if self.origin(key) == region:
+                continue
+            if (parsed.kind == "raw" and parsed.sensor in own) or (parsed.kind == "transition" and parsed.sensor in taken) \
+                    or parsed.kind in ("clock", "eos") \
+                    or (parsed.kind in ("progress", "done") and parsed.service == "sensor_agent"):
+                count += n
+        return count
 
 
 def run(source: Path, count: int, args: argparse.Namespace) -> dict:
@@ -123,7 +144,9 @@ def run(source: Path, count: int, args: argparse.Namespace) -> dict:
             session.close()
             stack.stop()
     total = sum(census.counts.values())
-    return {site: {"out": census.counts[site], "in": total - census.counts[site], **links[site]}
+    regions = RegionMap(deployment)
+    return {site: {"out": census.counts[site], "in": total - census.counts[site], **links[site],
+                   "needed": census.needed(site, regions) if site != HUB else 0}
             for site in [*names, HUB]} | {"total": total}
 
 
@@ -134,6 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--people", type=int, default=8)
     parser.add_argument("--seed", type=int, default=7)
     parser.add_argument("--cache", default=str(REPO / "benchmarks" / ".cache"))
+    parser.add_argument("--plot", metavar="FILE.png", help="also plot messages in per router against N")
     args = parser.parse_args(argv)
     problem = unavailable()
     if problem is not None:
@@ -158,16 +182,43 @@ def main(argv: list[str] | None = None) -> int:
         return f"{statistics.mean(values):.0f}{unit}{spread}"
 
     base = results[min(results)]
-    print(f"\n| per event s, mean over a site's router (min–max) | messages in | messages out | all messages "
-          "| kB received | kB sent | packets received | packets sent | messages in × N=1 | hub link: kB sent |")
-    print("| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    print(f"\n| per event s, mean over a site's router (min–max) | messages in | × N=1 | messages out | all messages "
+          "| kB received | kB sent | packets received | packets sent | hub link: kB sent | needed in (§11) | × N=1 |")
+    print("| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     for count, result in results.items():
         ratio = statistics.mean(per_site(result, "in")) / statistics.mean(per_site(base, "in"))
-        print(f"| N = {count} | {cell(per_site(result, 'in'))} | {cell(per_site(result, 'out'))} | "
+        needed = statistics.mean(per_site(result, "needed")) / statistics.mean(per_site(base, "needed"))
+        print(f"| N = {count} | {cell(per_site(result, 'in'))} | {ratio:.2f} | {cell(per_site(result, 'out'))} | "
               f"{result['total'] / span:.0f} | {cell(per_site(result, 'rx_bytes'), 1000)} | "
               f"{cell(per_site(result, 'tx_bytes'), 1000)} | {cell(per_site(result, 'rx_packets'))} | "
-              f"{cell(per_site(result, 'tx_packets'))} | {ratio:.2f} | {result[HUB]['tx_bytes'] / span / 1000:.0f} |")
+              f"{cell(per_site(result, 'tx_packets'))} | {result[HUB]['tx_bytes'] / span / 1000:.0f} | "
+              f"{cell(per_site(result, 'needed'))} | {needed:.2f} |")
+    if args.plot:
+        plot(results, span, args.plot)
     return 0
+
+
+def plot(results: dict, span: float, path: str) -> None:
+    """Messages taken in per site's router and event second against N: today, and needed under §11."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    counts = sorted(results)
+    fig, ax = plt.subplots(figsize=(5, 3.4))
+    for what, label in (("in", "taken in today (every message published elsewhere)"),
+                        ("needed", "needed in (own raw samples, band transitions, control)")):
+        means = [statistics.mean(v[what] / span for site, v in results[n].items() if site not in (HUB, "total"))
+                 for n in counts]
+        ax.plot(counts, means, marker="o", label=label)
+    ax.set_xlabel("regions N (a router each)")
+    ax.set_ylabel("messages per event s, per router")
+    ax.set_xticks(counts)
+    ax.set_ylim(bottom=0)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
 
 
 if __name__ == "__main__":
