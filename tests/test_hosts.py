@@ -25,13 +25,12 @@ import zenoh
 
 from bintrack.bus_payloads import TrackSet
 from bintrack.formats import open_dataset
-from bintrack.hosts.mesh_links import hub_endpoint, router_options, site_endpoints
 from bintrack.hosts.netns import NetnsError, ip, namespaces, unavailable
 from bintrack.hosts.site_network import PREFIX, SiteNetwork, leftovers
+from bintrack.hosts.site_stack import SiteStack
 from bintrack.keys import Keys
 from bintrack.live.session_options import client_config
 from bintrack.message_codec import decode
-from bintrack.live.stack import region_stack_commands
 
 from support import HUNG, REPO, bintrack, free_port, wait_logged
 from test_fault_routers import region_field
@@ -190,73 +189,10 @@ def test_a_site_cut_off_for_ten_seconds_loses_nothing(regions_field, tmp_path):
           + "; ".join(line.split(" ", 1)[1] for line in lines_with(up, "fetched from the sensors' state")))
 
 
-class Process:
-    """A process of a :class:`SiteStack`, its output in a log file."""
-
-    def __init__(self, name: str, argv: list[str], log_dir: Path):
-        self.name = name
-        self.log_path = log_dir / f"{name}.log"
-        self._log = open(self.log_path, "w")
-        self.proc = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT, cwd=REPO)
-
-    @property
-    def log(self) -> str:
-        if not self._log.closed:
-            self._log.flush()
-        return self.log_path.read_text()
-
-
-class SiteStack:
-    """The stack of ``up --regions 4 --hosts`` started by the test itself, process by process,
-    from the same commands (``region_stack_commands`` on a :class:`SiteNetwork`): so that a
-    site's processes can run in an environment of their own (``site_env``: region → variables)
-    and replay can be told not to hold event time while a site is gone (``hold``)."""
-
-    def __init__(self, field: Path, log_dir: Path, *, speed: float = 0.0, record: Path | None = None,
-                 site_env: dict[str, dict[str, str]] | None = None, hold: bool = True):
-        self.network = SiteNetwork(list(REGIONS)).create()
-        self.procs: dict[str, Process] = {}
-        try:
-            self.listen = listen = f"tcp/127.0.0.1:{free_port()}"
-            self.hub = self.start("router-hub", [sys.executable, "-m", "bintrack.services.router", "-l", listen, "-l",
-                                                 hub_endpoint(self.network, listen), "--name", "hub", *router_options()],
-                                  log_dir)
-            wait_logged(self.hub, "listening on")
-            state = log_dir / "state"
-            state.mkdir()
-            for command in region_stack_commands(
-                    regions=list(REGIONS), endpoint=listen, net=NET, source=str(field), speed=speed,
-                    record=None if record is None else str(record), routers=site_endpoints(self.network, listen),
-                    hub=hub_endpoint(self.network, listen), router_args=router_options()):
-                argv = command.argv(sys.executable)
-                if command.name != "router":
-                    argv += ["--id", command.key, "--state-dir", str(state)]
-                if command.name == "replay" and not hold:
-                    argv.append("--no-hold")
-                if command.site:
-                    env = [f"{k}={v}" for k, v in (site_env or {}).get(command.site, {}).items()]
-                    argv = self.network.argv(command.site, ["env", *env, *argv] if env else argv)
-                self.start(command.key, argv, log_dir)
-        except BaseException:
-            self.stop()
-            raise
-
-    def start(self, name: str, argv: list[str], log_dir: Path) -> Process:
-        self.procs[name] = Process(name, argv, log_dir)
-        return self.procs[name]
-
-    def stop(self) -> None:
-        """Stop every process (SIGTERM, then SIGKILL if it hangs) and remove the network."""
-        for proc in self.procs.values():
-            if proc.proc.poll() is None:
-                proc.proc.terminate()
-        for proc in self.procs.values():
-            try:
-                proc.proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                proc.proc.kill()
-                proc.proc.wait()
-        self.network.remove()
+def site_stack(field: Path, log_dir: Path, **options) -> SiteStack:
+    """The stack of ``up --regions 4 --hosts`` on ``field``, process by process (on a port no
+    other test is handed)."""
+    return SiteStack(list(REGIONS), str(field), NET, log_dir, port=free_port(), **options)
 
 
 @needs_namespaces
@@ -321,7 +257,7 @@ def test_sites_whose_clocks_are_off_by_half_a_second_give_the_same_rows(regions_
     shifted = {region: {"LD_PRELOAD": str(clock_offset), "CLOCK_OFFSET_NS": str(ns)}
                for region, ns in (("r0c1", 500_000_000), ("r1c0", -500_000_000))}
     recording = tmp_path / "run.mcap"
-    stack = SiteStack(field, tmp_path, speed=0.0, record=recording, site_env=shifted)
+    stack = site_stack(field, tmp_path, speed=0.0, record=recording, site_env=shifted)
     try:
         here = realtime_lead({}, stack.network.namespace("r0c0"))
         for region, shift in (("r0c1", 0.5), ("r1c0", -0.5)):
@@ -351,7 +287,7 @@ def test_a_site_cut_off_while_event_time_goes_on_turns_stale_and_names_every_los
     and the identities shown stale are shown again, live, after the heal."""
     field, offline = regions_field
     recording = tmp_path / "run.mcap"
-    stack = SiteStack(field, tmp_path, speed=1.0, record=recording, hold=False)
+    stack = site_stack(field, tmp_path, speed=1.0, record=recording, hold=False)
     merged: list = []
     cut_region: list[str] = []
     reached, stale = threading.Event(), threading.Event()

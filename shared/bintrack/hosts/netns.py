@@ -12,7 +12,7 @@ import subprocess
 from bintrack.errors import BintrackError
 
 IP = "ip"
-TCP_RETRIES = 3  # retransmissions before a connection is given up: about 3 s
+TCP_RETRIES = 2  # retransmissions before a connection is given up: about 1.4 s (200 ms doubling)
 
 
 class NetnsError(BintrackError):
@@ -53,7 +53,7 @@ def add_namespace(name: str) -> None:
     over the site's own address, which is local traffic)."""
     ip("netns", "add", name)
     ip("link", "set", "lo", "up", namespace=name)
-    # a peer that stops acknowledging is given up after about 3 s of retransmissions (the
+    # a peer that stops acknowledging is given up after about 1.4 s of retransmissions (the
     # default, 15 retries, takes 15 minutes): Zenoh's lease does not end a link whose sends
     # are blocked on a full socket, and reconnects on a link so left do not work (eclipse-zenoh/zenoh#1886)
     subprocess.run(exec_argv(name, ["sysctl", "-q", "-w", f"net.ipv4.tcp_retries2={TCP_RETRIES}"]), check=True,

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import fcntl
 import ipaddress
+import json
 import os
 import tempfile
 from pathlib import Path
@@ -166,7 +167,15 @@ class SiteNetwork:
     def __exit__(self, *exc) -> None:
         self.remove()
 
-    # -- faults ------------------------------------------------------------------------------------
+    # -- traffic and faults ------------------------------------------------------------------------
+
+    def link_traffic(self, site: str | None = None) -> dict[str, int]:
+        """What crossed site ``site``'s link (None: this machine's, the hub's) so far, as the
+        kernel counts it: ``rx_bytes``, ``tx_bytes``, ``rx_packets``, ``tx_packets`` (received
+        and sent by that site)."""
+        name, namespace = (self.tag, None) if site is None else (UPLINK, self.namespace(site))
+        stats = json.loads(ip("-s", "-j", "link", "show", "dev", name, namespace=namespace))[0]["stats64"]
+        return {f"{way}_{what}": stats[way][what] for way in ("rx", "tx") for what in ("bytes", "packets")}
 
     def cut(self, site: str) -> None:
         """Take site ``site``'s link down (its bridge port): it is cut off from every other site."""
