@@ -117,7 +117,8 @@ class SensorAgent(Service):
 
     def on_state(self, query: zenoh.Query) -> None:
         """``…/state``; ``?since=N``: also the transitions after seq N; ``?source=ID;after=N``:
-        also those this instance (ID) sent after its source_seq N (nothing if ID is another)."""
+        also those this instance (ID) sent after its source_seq N: then every hosted sensor
+        answers, so that the asker knows this agent was reached (nothing if ID is another)."""
         try:
             since, after = (None if text is None else int(text) for text in (query.parameters.get("since"),
                                                                               query.parameters.get("after")))
@@ -130,9 +131,7 @@ class SensorAgent(Service):
         for sensor_id, hosted in self.hosts.sensors.items():
             key = self.keys.state(sensor_id)
             if zenoh.KeyExpr(key).intersects(query.key_expr):
-                state = hosted.state(since, after)
-                if source is None or state.missed:
-                    query.reply(key, encode(state))
+                query.reply(key, encode(hosted.state(since, after)))
 
 
 def build_parser() -> argparse.ArgumentParser:

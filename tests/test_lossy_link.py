@@ -85,7 +85,7 @@ def test_source_check_contiguous_out_of_order_and_first_missing():
 
 
 def test_a_departed_upstream_holds_the_watermark_for_the_hold_after_it_went_not_after_its_floor():
-    mark = UpstreamWatermark({"peer_agent"}, hold=2.0)
+    mark = UpstreamWatermark({"peer_agent"}, hold=2.0, grace=0.0)
     # before any peer agent was seen nothing is released: its token may come after the clock
     assert mark.bound(0.0) == float("-inf")
     mark.on_liveliness("peer_agent", "p1", True)
@@ -114,7 +114,7 @@ def test_a_departed_upstream_holds_the_watermark_for_the_hold_after_it_went_not_
 
 
 def test_ticks_already_in_flight_when_an_upstream_went_do_not_use_up_its_hold():
-    mark = UpstreamWatermark({"sensor_agent"}, hold=2.0)
+    mark = UpstreamWatermark({"sensor_agent"}, hold=2.0, grace=0.0)
     mark.on_liveliness("sensor_agent", "s1", True)
     mark.reported("sensor_agent", "s1", 8.0)
     mark.on_liveliness("sensor_agent", "s1", False)
@@ -131,8 +131,30 @@ def test_ticks_already_in_flight_when_an_upstream_went_do_not_use_up_its_hold():
     assert mark.bound(28.5, lead) == float("inf")  # gone for good after the hold and the lead
 
 
+def test_a_departed_upstream_holds_for_the_grace_in_wall_time_however_fast_the_clock_runs():
+    # at --speed 0 the replay, which saw the tokens come back, runs the hold's event time out in
+    # a fraction of a second, while this consumer's view of the token waits for a link of the mesh
+    wall = [100.0]
+    mark = UpstreamWatermark({"sensor_agent"}, hold=2.0, grace=5.0, now=lambda: wall[0])
+    mark.on_liveliness("sensor_agent", "s1", True)
+    mark.on_liveliness("sensor_agent", "s2", True)
+    mark.reported("sensor_agent", "s1", 16.5)
+    mark.reported("sensor_agent", "s2", 30.0)
+    mark.on_liveliness("sensor_agent", "s1", False)
+    assert mark.bound(16.5) == 16.5
+    wall[0] += 0.4
+    assert mark.bound(20.1, 1.6) == 16.5  # the event-time hold is over, the grace is not
+    mark.on_liveliness("sensor_agent", "s1", True)  # its token back over the healed link
+    assert mark.bound(21.0, 1.6) == 16.5  # what it sends from 16.5 s is not late
+    mark.on_liveliness("sensor_agent", "s1", False)
+    wall[0] += 4.9
+    assert mark.bound(25.0) == 16.5
+    wall[0] += 0.2
+    assert mark.bound(27.0) == 30.0  # gone for good: 2 s of event time and 5 s of wall time
+
+
 def test_the_watermark_waits_for_an_instance_of_each_upstream_service():
-    mark = UpstreamWatermark({"sensor_agent", "peer_agent"}, hold=2.0)
+    mark = UpstreamWatermark({"sensor_agent", "peer_agent"}, hold=2.0, grace=0.0)
     mark.on_liveliness("sensor_agent", "s1", True)
     mark.reported("sensor_agent", "s1", 5.0)
     assert mark.bound(5.0) == float("-inf")  # no peer agent seen yet

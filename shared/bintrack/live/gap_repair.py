@@ -43,6 +43,7 @@ class GapRepair:
         self.query = query
         self.report = report
         self.state = state if state is not None else IntakeState()
+        self.unanswered: set[str] = set()  # agents whose sent transitions wait for their state's answer
 
     def receive(self, transition: Transition, key: str) -> None:
         """A transition that arrived on ``key``: taken, repaired after a gap, or dropped."""
@@ -88,13 +89,31 @@ class GapRepair:
                         transition.seq, transition.sensor,
                         "; asked again at its agent's next progress report" if transition.source else "")
 
-    def agent_sent(self, source: str, sent: int) -> None:
-        """A sensor agent says it has sent ``sent`` transitions: fetch any that did not arrive."""
+    def agent_sent(self, source: str, sent: int) -> bool:
+        """A sensor agent says it has sent ``sent`` transitions: fetch any that did not arrive.
+        Whether the agent's count is settled: False while it has not answered (its queryable is
+        not reachable yet, e.g. just after a router came back), so that its progress report
+        must not move the watermark past transitions still to be fetched; the next report asks
+        again. Transitions the agent answered without (past its memory) are logged as lost."""
         first = self.state.sources.first_missing(source, sent)
-        if first is not None:
-            selector = f"{self.keys.state()}?source={source};after={first - 1}"
-            if not self.fetch_missed(selector, upto=sent):
-                log.warning("%s: %s sent transitions that were lost and could not be fetched", self.who, source)
+        if first is None:
+            self.unanswered.discard(source)
+            return True
+        selector = f"{self.keys.state()}?source={source};after={first - 1}"
+        if not self.fetch_missed(selector, upto=sent):
+            if source not in self.unanswered:
+                self.unanswered.add(source)
+                log.warning("%s: %s sent transitions that did not arrive and its state does not answer yet; "
+                            "its progress is held until they are fetched", self.who, source)
+            return False
+        if source in self.unanswered:
+            self.unanswered.discard(source)
+            log.info("%s: the transitions %s sent that did not arrive are fetched", self.who, source)
+        still = self.state.sources.first_missing(source, sent)
+        if still is not None:
+            log.warning("%s: %s sent transitions from its count %d on that were lost and are no longer in its "
+                        "memory", self.who, source, still)
+        return True
 
     def taken(self, transition: Transition) -> bool:
         """Whether ``transition`` was taken already: by its agent's count where it carries one

@@ -73,7 +73,7 @@ class TransitionConsumer(Service):
         released = self.driver.buffer.released_until if self.driver is not None else -math.inf
         # the lead: what the replays announced may be in flight (see control_guard)
         self.watermark = Watermark(services, self.args.lateness, lambda: max(self.guard.steps.values(), default=0.0),
-                                   released)
+                                   released, who=self.name)
         self.follow_presence(self.on_presence)
         for service in services:
             if service != "sensor_agent":
@@ -150,13 +150,13 @@ class TransitionConsumer(Service):
 
     def on_agent_progress(self, sample: zenoh.Sample) -> None:
         """A sensor agent says how far it has handled its samples and how many transitions it
-        has sent: fetch any that did not arrive, then move the watermark."""
+        has sent: fetch any that did not arrive, then move the watermark (not before they are)."""
         report = self.read(Clock, sample)
         if report is None:
             return
         source = parse_key(str(sample.key_expr)).instance
-        if report.sent is not None:
-            self.intake.agent_sent(source, report.sent)
+        if report.sent is not None and not self.intake.agent_sent(source, report.sent):
+            return  # transitions it sent are still to be fetched: the watermark waits for them
         self.watermark.reported("sensor_agent", source, report.t)
         self.release()
 

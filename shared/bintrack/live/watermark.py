@@ -9,12 +9,20 @@ release the tracker to, once, when it moved.
 
 from __future__ import annotations
 
+import logging
 import math
+import time
 from collections.abc import Callable, Iterable
 
 from bintrack.keys import ParsedKey
 
+log = logging.getLogger("bintrack")
+
 DEPARTED_HOLD = 2.0  # s of event time an upstream instance that went away still holds the watermark
+# s of wall time it holds at least: after a router restart the tokens come back over each link of
+# the mesh in turn, and at --speed 0 the replay (which saw them all back) runs the hold's event
+# time out in a fraction of a second
+DEPARTED_GRACE = 5.0
 
 
 class Watermark:
@@ -25,8 +33,8 @@ class Watermark:
     times ``--max-ahead``; see :mod:`bintrack.live.control_guard`)."""
 
     def __init__(self, services: Iterable[str], lateness: float, lead: Callable[[], float],
-                 released: float = -math.inf):
-        self.upstream = UpstreamWatermark(services, DEPARTED_HOLD)
+                 released: float = -math.inf, who: str = "bintrack"):
+        self.upstream = UpstreamWatermark(services, DEPARTED_HOLD, who=who)
         self.lateness = lateness
         self.lead = lead
         self.last_tick = -math.inf
@@ -68,8 +76,9 @@ class UpstreamWatermark:
     reports what it has released. ``bound(tick)`` is the least report of the live instances of
     ``services`` (−inf for one that has not reported yet); an instance whose token went keeps
     its last report as a floor until it is back (a restart under the same id) or the clock
-    advanced ``hold`` s plus the replay's lead past the first tick seen after the token went (it
-    is gone for good), so that what it sends after a restart is not late. The replay holds event
+    advanced ``hold`` s plus the replay's lead past the first tick seen after the token went and
+    ``grace`` s of wall time (``now``, s) have passed since (it is gone for good), so that what
+    it sends after a restart, or once its token is back over a healed link, is not late. The replay holds event
     time while an awaited service is gone, but up to its lead (``--max-ahead`` clock periods, the
     ``lead`` given to :meth:`bound`) of ticks it sent before may still be on their way: they
     arrive on another path than the departure, so they must not use up the hold. Until an
@@ -79,13 +88,18 @@ class UpstreamWatermark:
     +inf (the clock alone bounds).
     """
 
-    def __init__(self, services, hold: float):
+    def __init__(self, services, hold: float, grace: float = DEPARTED_GRACE,
+                 now: Callable[[], float] = time.monotonic, who: str = "bintrack"):
         self.services = frozenset(services)
         self.hold = hold
+        self.grace = grace
+        self.now = now
+        self.who = who
         self.alive: set[tuple[str, str]] = set()
         self.progress: dict[tuple[str, str], float] = {}
-        # instance whose token went → the first tick (s) seen after it went (None: none yet)
-        self.departed: dict[tuple[str, str], float | None] = {}
+        # instance whose token went → [the first tick (s) seen after it went (None: none yet),
+        # the wall time (s) it went]
+        self.departed: dict[tuple[str, str], list] = {}
         self.unseen = set(self.services)  # services none of whose instances has been live yet
 
     def on_liveliness(self, service: str, instance: str, present: bool) -> None:
@@ -98,7 +112,7 @@ class UpstreamWatermark:
             self.unseen.discard(service)
         elif entry in self.alive:
             self.alive.discard(entry)
-            self.departed[entry] = None  # its floor: its last report, −inf if it never reported
+            self.departed[entry] = [None, self.now()]  # its floor: its last report, −inf if it never reported
 
     def reported(self, service: str, instance: str, t: float) -> None:
         entry = (service, instance)
@@ -111,12 +125,15 @@ class UpstreamWatermark:
         least = -math.inf if self.unseen else math.inf
         for entry in self.alive:
             least = min(least, self.progress.get(entry, -math.inf))
-        for entry, since in list(self.departed.items()):
-            if since is None:
-                self.departed[entry] = since = tick
-            if tick >= since + self.hold + lead:
+        for entry, went in list(self.departed.items()):
+            if went[0] is None:
+                went[0] = tick
+            since, went_at = went
+            if tick >= since + self.hold + lead and self.now() - went_at >= self.grace:
                 del self.departed[entry]
                 self.progress.pop(entry, None)
+                log.info("%s: %s %s gone for good at t=%g s; the watermark no longer waits for it", self.who,
+                         *entry, tick)
             else:
                 least = min(least, self.progress.get(entry, -math.inf))
         return least
