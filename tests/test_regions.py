@@ -188,3 +188,31 @@ def test_watch_shows_the_region_and_staleness_of_merged_tracks():
                                                         Track(track=1, x=3, y=4, region="r1c1", stale=True)])
     assert format_trackset(merged) == ("t=1.000 tracker=mcmcda tracks=2 | #0 (1.00, 2.00) v=(-, -) r0c0 | "
                                        "#1 (3.00, 4.00) v=(-, -) r1c1 stale")
+
+
+def test_an_identity_made_while_the_owner_was_cut_off_gives_way_to_the_owners_when_it_is_back():
+    """A target walking west: east tracks it, east's link is cut, and more than the hand-over
+    time later west's border band picks it up on east's side (a new, provisional identity).
+    When east is back and shows its track beside west's, the target carries east's identity
+    again, also once it is on west's side: the identity is kept across the cut."""
+    merge = RegionMerge(RegionMap(deployment(HALVES)), MergeConfig(gate=5.0, handover=5.0))
+    merge.back("west"), merge.back("east")
+    out = []
+    t = 0.0
+    while t <= 20.0:
+        x = 40.0 - t
+        if t == 4.5:
+            out += merge.lost("east")
+        if t == 12.5:
+            merge.back("east")
+        east_live = t < 4.5 or t >= 12.5
+        merge.add("west", scan(t, *([(1, x - 0.1, 20.0)] if t >= 10.0 else [])))
+        if east_live:
+            merge.add("east", scan(t, (7, x + 0.1, 20.0)))
+        out += merge.progress("west", t) + (merge.progress("east", t) if east_live else [])
+        t += 0.5
+    live = {m.t: {tr.track for tr in m.tracks if not tr.stale} for m in out}
+    assert all(live[k] == {0} for k in live if k < 4.5)
+    assert all(live[k] == {1} for k in live if 10.0 <= k < 12.5)  # east cut off: west's own identity
+    assert all(live[k] == {0} for k in live if k >= 12.5), live  # east back: its identity, on both sides
+    assert max(live) == 20.0 and 40.0 - 20.0 < 27.5  # the target ends on west's side

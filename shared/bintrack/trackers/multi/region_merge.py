@@ -15,6 +15,9 @@ ids. At each scan the merge
    target crosses a border, the neighbour's track, linked to it while both saw the target,
    carries it on), else that of a track of another region that ended within ``handover``
    seconds and whose position predicted by its velocity lies within ``gate``, else a new one.
+   A new identity made where the region owning the target was cut off (stale) is provisional:
+   once that region is back and links its own track to the target, the target carries the
+   owner's identity again (the identity is kept across the cut).
 
 A region whose base station is gone (:meth:`RegionMerge.lost`) is not waited for; its last
 tracks stay in the output with ``stale`` set until it is back.
@@ -69,6 +72,13 @@ class RegionMerge:
     emitted_up_to: float = -math.inf
     next_id: int = 0
     tracker: str = "mcmcda"
+    # identities made for a track where the region owning its position was stale: the owner's
+    # own identity for that target takes over once the owner is back and shows it
+    provisional: set[int] = field(default_factory=set)
+
+    def __setstate__(self, state: dict) -> None:
+        state.setdefault("provisional", set())  # a checkpoint from before provisional identities
+        self.__dict__.update(state)
 
     def __post_init__(self):
         scale = self.regions.deployment.metres_per_unit
@@ -200,6 +210,13 @@ class RegionMerge:
 
     def _identity(self, t: float, group, best: Track, region: str, used: set[int]) -> int:
         own = self.ids.get((region, best.track))
+        if own in self.provisional:
+            # made while the region owning the target was cut off: that region, back, keeps its own
+            settled = sorted(gid for r, tr in group if (gid := self.ids.get((r, tr.track))) is not None
+                             and gid not in self.provisional and gid not in used)
+            if settled:
+                self.provisional.discard(own)
+                return settled[0]
         if own is not None and own not in used:
             return own  # an identity, once given to a region's track, stays with it
         # hand-over: the identity of the track of another region it was linked with, the latest shown
@@ -220,6 +237,8 @@ class RegionMerge:
                 best_gid, best_d = gid, d
         if best_gid is not None:
             return best_gid
+        if self.regions.owner(best.x, best.y) in self.stale:
+            self.provisional.add(self.next_id)
         self.next_id += 1
         return self.next_id - 1
 
