@@ -135,7 +135,7 @@ def test_a_departed_upstream_holds_for_the_grace_in_wall_time_however_fast_the_c
     # at --speed 0 the replay, which saw the tokens come back, runs the hold's event time out in
     # a fraction of a second, while this consumer's view of the token waits for a link of the mesh
     wall = [100.0]
-    mark = UpstreamWatermark({"sensor_agent"}, hold=2.0, grace=5.0, now=lambda: wall[0])
+    mark = UpstreamWatermark({"sensor_agent"}, hold=2.0, grace=3.0, now=lambda: wall[0])
     mark.on_liveliness("sensor_agent", "s1", True)
     mark.on_liveliness("sensor_agent", "s2", True)
     mark.reported("sensor_agent", "s1", 16.5)
@@ -147,10 +147,10 @@ def test_a_departed_upstream_holds_for_the_grace_in_wall_time_however_fast_the_c
     mark.on_liveliness("sensor_agent", "s1", True)  # its token back over the healed link
     assert mark.bound(21.0, 1.6) == 16.5  # what it sends from 16.5 s is not late
     mark.on_liveliness("sensor_agent", "s1", False)
-    wall[0] += 4.9
+    wall[0] += 2.9
     assert mark.bound(25.0) == 16.5
     wall[0] += 0.2
-    assert mark.bound(27.0) == 30.0  # gone for good: 2 s of event time and 5 s of wall time
+    assert mark.bound(27.0) == 30.0  # gone for good: 2 s of event time and 3 s of wall time
 
 
 def test_the_watermark_waits_for_an_instance_of_each_upstream_service():

@@ -21,8 +21,9 @@ log = logging.getLogger("bintrack")
 DEPARTED_HOLD = 2.0  # s of event time an upstream instance that went away still holds the watermark
 # s of wall time it holds at least: after a router restart the tokens come back over each link of
 # the mesh in turn, and at --speed 0 the replay (which saw them all back) runs the hold's event
-# time out in a fraction of a second
-DEPARTED_GRACE = 5.0
+# time out in a fraction of a second. up restarts a router after 0.5 s and the sessions reconnect
+# within about 1 s; at --speed 1 the event-time hold alone lasts longer than this
+DEPARTED_GRACE = 3.0
 
 
 class Watermark:
