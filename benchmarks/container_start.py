@@ -63,7 +63,7 @@ def main() -> int:
         print(f"container_start: no image {args.image} (make test builds it): {inspect.stderr.strip()}", file=sys.stderr)
         return 2
     size = json.loads(inspect.stdout)[0]["Size"]
-    print(f"image {args.image}: {size / 1e6:.0f} MB (uncompressed, as `podman images` shows it; the target: < 400 MB)")
+    print(f"image {args.image}: {size / 1e6:.1f} MB (uncompressed, as `podman images` shows it; the target: < 400 MB)")
 
     cases = {
         "router until `listening on`": (["bintrack.services.router", "-l", "tcp/127.0.0.1:7447"], "listening on"),
