@@ -44,6 +44,7 @@ class GapRepair:
         self.report = report
         self.state = state if state is not None else IntakeState()
         self.unanswered: set[str] = set()  # agents whose sent transitions wait for their state's answer
+        self.forgotten: dict[str, int] = {}  # agent → the count from which it no longer had them (logged)
 
     def receive(self, transition: Transition, key: str) -> None:
         """A transition that arrived on ``key``: taken, repaired after a gap, or dropped."""
@@ -110,7 +111,8 @@ class GapRepair:
             self.unanswered.discard(source)
             log.info("%s: the transitions %s sent that did not arrive are fetched", self.who, source)
         still = self.state.sources.first_missing(source, sent)
-        if still is not None:
+        if still is not None and self.forgotten.get(source) != still:
+            self.forgotten[source] = still
             log.warning("%s: %s sent transitions from its count %d on that were lost and are no longer in its "
                         "memory", self.who, source, still)
         return True

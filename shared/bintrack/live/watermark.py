@@ -71,22 +71,21 @@ class UpstreamWatermark:
     """The event time before which every upstream service instance has published all it will
     (an adaptive watermark, DESIGN §5), from their progress reports.
 
-    A sensor agent reports progress ``t`` after a clock tick once every sample before it is
-    handled, so all its transitions with event time < ``t`` are out (and arrived, in publisher
-    order, before the report; lost ones are fetched when the report comes). A tracker service
-    reports what it has released. ``bound(tick)`` is the least report of the live instances of
-    ``services`` (−inf for one that has not reported yet); an instance whose token went keeps
-    its last report as a floor until it is back (a restart under the same id) or the clock
-    advanced ``hold`` s plus the replay's lead past the first tick seen after the token went and
-    ``grace`` s of wall time (``now``, s) have passed since (it is gone for good), so that what
-    it sends after a restart, or once its token is back over a healed link, is not late. The replay holds event
-    time while an awaited service is gone, but up to its lead (``--max-ahead`` clock periods, the
-    ``lead`` given to :meth:`bound`) of ticks it sent before may still be on their way: they
-    arrive on another path than the departure, so they must not use up the hold. Until an
-    instance of each of ``services`` has been seen it is −inf: their first outputs may arrive
-    after the first ticks, and a liveliness token comes on another path than the clock, so the
-    clock alone must not release past them. Once every instance seen has gone for good it is
-    +inf (the clock alone bounds).
+    A sensor agent reports progress ``t`` after a clock tick once every sample before it is handled,
+    so all its transitions with event time < ``t`` are out (and arrived, in publisher order, before
+    the report; lost ones are fetched when the report comes). A tracker service reports what it has
+    released. ``bound(tick)`` is the least report of the live instances of ``services`` (−inf for
+    one that has not reported yet); an instance whose token went keeps its last report as a floor
+    until it is back (a restart under the same id) or the clock advanced ``hold`` s plus the
+    replay's lead past the first tick seen after the token went and ``grace`` s of wall time
+    (``now``, s) have passed since (it is gone for good), so that what it sends after a restart, or
+    once its token is back over a healed link, is not late. The replay holds event time while an
+    awaited service is gone, but up to its lead (``--max-ahead`` clock periods, the ``lead`` given
+    to :meth:`bound`) of ticks it sent before may still be on their way: they arrive on another path
+    than the departure, so they must not use up the hold. Until an instance of each of ``services``
+    has been seen it is −inf: their first outputs may arrive after the first ticks, and a liveliness
+    token comes on another path than the clock, so the clock alone must not release past them. Once
+    every instance seen has gone for good it is +inf (the clock alone bounds).
     """
 
     def __init__(self, services, hold: float, grace: float = DEPARTED_GRACE,
