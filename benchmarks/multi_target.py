@@ -187,6 +187,7 @@ VARIANTS: dict[str, dict] = {
     "exit0": {"mcmcda": {"exit_depth": 0.0}},
     "exit2": {"mcmcda": {"exit_depth": 2.0}},
     "exit3": {"mcmcda": {"exit_depth": 3.0}},
+    "exit4": {"mcmcda": {"exit_depth": 4.0}},
     "pd0.8": {"mcmcda": {"pd": 0.8}},
     "pd0.9": {"mcmcda": {"pd": 0.9}},
     "lf1e-4": {"mcmcda": {"false_alarm_rate": 1e-4}},
