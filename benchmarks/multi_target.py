@@ -63,7 +63,7 @@ import json
 import multiprocessing
 import sys
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -183,6 +183,11 @@ VARIANTS: dict[str, dict] = {
     "adapt50": {"mcmcda": {"adapt_rates": 50}},
     "adapt200": {"mcmcda": {"adapt_rates": 200}},
     "adapt1000": {"mcmcda": {"adapt_rates": 1000}},
+    "noexit": {"mcmcda": {"exit_depth": None}},
+    "exit0": {"mcmcda": {"exit_depth": 0.0}},
+    "exit2": {"mcmcda": {"exit_depth": 2.0}},
+    "exit3": {"mcmcda": {"exit_depth": 3.0}},
+    "exit4": {"mcmcda": {"exit_depth": 4.0}},
     "pd0.8": {"mcmcda": {"pd": 0.8}},
     "pd0.9": {"mcmcda": {"pd": 0.9}},
     "lf1e-4": {"mcmcda": {"false_alarm_rate": 1e-4}},
@@ -269,10 +274,26 @@ def _score_key(case, kind: str, setting) -> str:
     digest = hashlib.sha256()
     for source in PEER_SOURCES:
         digest.update((Path(__file__).parent / source).read_bytes())
-    digest.update(repr((kind, setting, case.path.name, case.config, [r.t for r in case.reports])).encode())
+    digest.update(repr((kind, setting, case.path.name, _ConfigRepr(case.config), [r.t for r in case.reports])).encode())
     for reports in case.plain_reports:
         digest.update(repr((reports.t, [(r.x, r.y, r.cov) for r in reports.reports])).encode())
     return digest.hexdigest()[:32]
+
+
+PEERS_IGNORE = ("exit_depth",)  # our publish policy's: no peer reads it
+
+
+class _ConfigRepr:
+    """The repr of our MCMCDAConfig without the fields no peer reads (``PEERS_IGNORE``), so that
+    a change of those keeps the Stone Soup scores kept under ``--cache``."""
+
+    def __init__(self, config):
+        self.config = config
+
+    def __repr__(self) -> str:
+        c = self.config
+        return f"{type(c).__qualname__}(" + ", ".join(f"{f.name}={getattr(c, f.name)!r}" for f in fields(c)
+                                                     if f.repr and f.name not in PEERS_IGNORE) + ")"
 
 
 # --------------------------------------------------------------------------- summaries

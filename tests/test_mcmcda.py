@@ -211,6 +211,31 @@ def test_a_person_unreported_for_a_while_keeps_their_identity_where_their_track_
         assert len(seen) == identities, f"seed {seed}"
 
 
+def square_field_depth(x: float, y: float) -> float:
+    """How far (x, y) lies inside the field [0, 50] × [0, 50] m, negative outside."""
+    return min(x, 50.0 - x, y, 50.0 - y)
+
+
+@pytest.mark.parametrize("last_x, field_depth, coasted", [(30.0, square_field_depth, True), (49.0, square_field_depth, False),
+                                                           (49.0, None, True)])
+def test_a_track_unreported_at_the_field_edge_is_not_coasted(last_x, field_depth, coasted):
+    # one person walks along y = 30 at 1.5 m/s, reported every scan until they are at last_x,
+    # then not: inside the field their track is shown predicted for a scan (coast); predicted
+    # less than exit_depth = 1 m inside the field's edge (at x ≈ 49.75) the person has most
+    # likely left, and the track is not shown; with no field known, it is coasted anywhere
+    tracker = OnlineMCMCDA(MCMCDAConfig(seed=0), field_depth=field_depth)
+    rng = np.random.default_rng(5)
+    scans = 12
+    for k in range(scans + 1):
+        x = last_x - 0.75 * (scans - 1 - k)
+        reports = [] if k == scans else [PositionReport(x=x + rng.normal(0, 0.3), y=30 + rng.normal(0, 0.3),
+                                                        cov=((0.5, 0.0), (0.0, 0.5)))]
+        tracks = tracker.step(PositionReports(t=0.5 * k, reports=reports)).tracks
+        if k == scans - 1:
+            assert [tr.track for tr in tracks] == [1]
+    assert [tr.track for tr in tracks] == ([1] if coasted else [])
+
+
 def test_mcmcda_is_deterministic_given_the_seed():
     _, scans = constant_velocity_reports(seed=4, scans=40)
     first, again, other = (OnlineMCMCDA(MCMCDAConfig(seed=seed)) for seed in (7, 7, 8))
@@ -314,6 +339,7 @@ def test_mcmcda_parameters_in_metres_convert_to_feet():
     assert ft.extra_variance == pytest.approx(m.extra_variance / FOOT ** 2)
     assert ft.false_alarm_rate == pytest.approx(m.false_alarm_rate * FOOT ** 2)
     assert ft.birth_rate == pytest.approx(m.birth_rate * FOOT ** 2)
+    assert ft.exit_depth == pytest.approx(m.exit_depth / FOOT)
     assert (ft.window, ft.n_mc, ft.pd, ft.reidentify) == (m.window, m.n_mc, m.pd, m.reidentify)
     assert m.in_units(1.0) == m
     # the tracker converts its metre defaults, but --speed is already in the deployment's units

@@ -290,6 +290,11 @@ class ScanFusion:
         self._next: int | None = None  # index of the next scan to emit
         self._last_t: float | None = None
 
+    @property
+    def sensors(self) -> dict:
+        """The deployment's sensors by id."""
+        return self._sensors
+
     def fuse(self, scan: Scan, expected: list[Expectation] | tuple = ()) -> PositionReports:
         """The position reports of ``scan`` (``GridFusion.reports``), given where the tracks
         expect targets (used by the "fit" fusion)."""

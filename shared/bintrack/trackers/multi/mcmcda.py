@@ -35,6 +35,7 @@ from __future__ import annotations
 import math
 import random
 from collections import deque
+from collections.abc import Callable
 from dataclasses import replace
 
 from bintrack.bus_payloads import PositionReports, TrackSet
@@ -55,8 +56,10 @@ class OnlineMCMCDA(ScanWindow, ChainMoves, TrackIdentity):
     the posterior's scores and the chain that runs the moves."""
 
     def __init__(self, config: MCMCDAConfig = MCMCDAConfig(), tracker_name: str = "mcmcda",
-                 area: float | None = None):
-        """``area``: the field's area, units² (for ``config.adapt_rates``, which needs it)."""
+                 area: float | None = None, field_depth: Callable[[float, float], float] | None = None):
+        """``area``: the field's area, units² (for ``config.adapt_rates``, which needs it);
+        ``field_depth``: how far (units) a point lies inside the sensor field, negative outside
+        (for ``config.exit_depth``; None: no field, tracks are coasted anywhere)."""
         self.config = config
         self.name = tracker_name
         self._rng = random.Random(config.seed)
@@ -77,6 +80,7 @@ class OnlineMCMCDA(ScanWindow, ChainMoves, TrackIdentity):
             if not area or area <= 0:
                 raise TrackerConfigError("MCMCDA adapt_rates needs the field's area")
             self._rates = RateEstimate(config.pd, config.false_alarm_rate, area, config.adapt_rates)
+        self.field_depth = field_depth
         self.last_score = 0.0
 
     # the chain's scratch tables, made afresh for each scan's chain (_run_chain)

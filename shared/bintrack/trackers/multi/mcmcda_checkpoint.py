@@ -13,6 +13,7 @@ def upgrade_checkpoint(chain: OnlineMCMCDA) -> None:
     """Complete ``chain``, just unpickled: a checkpoint taken before the gate tables (``_gates``;
     it had ``_by_scan``) gets them from its window, as :meth:`~OnlineMCMCDA.step` made them."""
     chain.__dict__.setdefault("_rates", None)  # before online rate estimates (adapt_rates)
+    chain.__dict__.setdefault("field_depth", None)  # before exits (exit_depth): its tracker sets it
     if "_gates" in chain.__dict__:
         return
     chain.__dict__.pop("_by_scan", None)

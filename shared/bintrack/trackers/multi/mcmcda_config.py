@@ -54,6 +54,11 @@ class MCMCDAConfig:
     """reports a track needs (fixed and in the window) before it is published"""
     coast: int = 1
     """scans a published track is predicted past its last report before it is dropped"""
+    exit_depth: float | None = 1.0
+    """a published track unreported in a scan is not shown predicted (``coast``) when its
+    prediction lies less than this far (units; negative: outside) inside the sensor field, the
+    sensors' convex hull: there a person no sensor reports has most likely left (1 m chosen on
+    the tuning half of ``benchmarks/multi_target.py``); None: coasted anywhere"""
     reidentify: float = 8.0
     """s: a new track takes the identity of a track last shown at most this long ago (and
     before its first report), if that report lies within ``gate_sigmas`` of the old track's
@@ -78,6 +83,7 @@ class MCMCDAConfig:
         return replace(self, process_noise=self.process_noise * k * k, extra_variance=self.extra_variance * k * k,
                        initial_speed=self.initial_speed * k, max_speed=self.max_speed * k,
                        false_alarm_rate=self.false_alarm_rate / (k * k), birth_rate=self.birth_rate / (k * k),
+                       exit_depth=None if self.exit_depth is None else self.exit_depth * k,
                        birth_edge=None if self.birth_edge is None else self.birth_edge * k,
                        birth_area=None if self.birth_area is None else tuple(v * k for v in self.birth_area))
 

@@ -22,6 +22,9 @@ ceiling-PIR recording of Milan et al., ACCV 2014 workshops; reported on r1-mediu
   evidence (footprints of neighbouring sensors overlap, and one walker lights several);
 * ``max_misses`` 5 (d̄): a PIR sees motion, and a person who slows down or stands fires fewer
   sensors; their track survives 2.5 s without a report (still shown only one scan past it);
+* ``exit_depth`` None: a track is coasted near the room's walls too, as before exits were
+  added (they were chosen on paper 004's outdoor grid, where people leave across the field's
+  edge, and not tried in the room);
 * births: λ_b ten times lower farther than 1.5 m from the walls (``MCMCDAConfig.birth_edge``):
   people enter through the doors.
 """
@@ -59,7 +62,7 @@ def pir_settings(deployment: Deployment, fusion: FusionConfig, config: MCMCDACon
     radius = statistics.median(s.range for s in deployment.sensors if isinstance(s, DiskSensor))
     radius_m = radius * deployment.metres_per_unit
     config = replace(config, extra_variance=(radius_m / FOOTPRINT_SIGMAS) ** 2, pd=PIR_REPORT_PD,
-                     birth_rate=PIR_BIRTH_RATE, max_misses=PIR_MAX_MISSES)
+                     birth_rate=PIR_BIRTH_RATE, max_misses=PIR_MAX_MISSES, exit_depth=None)
     if DOOR_DEPTH is not None:
         r = deployment.region
         m = deployment.metres_per_unit

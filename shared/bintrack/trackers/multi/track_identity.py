@@ -16,6 +16,10 @@ same person. Failing that, it is re-identified: it takes the identity of the tra
 most ``reidentify`` s before, and before its first report, whose Kalman prediction that report
 fits best within ``gate_sigmas`` (a person lost for longer than d̄ scans, in clutter or beside
 someone else). Else it gets a fresh identity.
+
+A published track that goes unreported is shown predicted for ``coast`` scans, except where
+its prediction lies less than ``exit_depth`` inside the sensor field (:meth:`_left`): at the
+field's edge a person no sensor reports has most likely left it.
 """
 
 from __future__ import annotations
@@ -117,6 +121,14 @@ class TrackIdentity:
                 fits.append((d2, label))
         return min(fits)[1] if fits else self._new_identity()
 
+    def _left(self, last_scan: int, sx, sy) -> bool:
+        """Whether a track last reported at ``last_scan`` and predicted at (``sx``, ``sy``) has
+        most likely left the sensor field: unreported in this scan, and predicted less than
+        ``exit_depth`` inside the field. It is then not shown predicted."""
+        depth, c = self.field_depth, self.config
+        return (last_scan < self._scan and c.exit_depth is not None and depth is not None
+                and depth(sx[0], sy[0]) < c.exit_depth)
+
     def _publish(self, t: float) -> TrackSet:
         c = self.config
         shown, hidden = [], []
@@ -127,7 +139,7 @@ class TrackIdentity:
             sx, sy, count = self._predicted(track, t)
             if count < c.min_reports:
                 continue
-            if self._scan - end[0] <= c.coast:
+            if self._scan - end[0] <= c.coast and not self._left(end[0], sx, sy):
                 shown.append((track, sx, sy))
             elif track.label is not None:
                 hidden.append((track, sx, sy))

@@ -10,6 +10,8 @@ arc of length R·arc) or, without an arc, R²/4.
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
 
 from bintrack.trackers.multi.fusion import Scan, ScanFusion
 from bintrack.trackers.multi.fusion_config import FusionConfig
@@ -44,13 +46,28 @@ class MCMCDATracker:
         self.fusion = ScanFusion(deployment, fusion)
         region = deployment.region
         self.mcmcda = OnlineMCMCDA(config.in_units(deployment.metres_per_unit), self.name,
-                                   area=(region.xmax - region.xmin) * (region.ymax - region.ymin))
+                                   area=(region.xmax - region.xmin) * (region.ymax - region.ymin),
+                                   field_depth=self.fusion.grid.depth)
         self._track_aided = fusion.clustering == "fit" and fusion.track_aided
         self.peer = peer
         self._ranges = {s.id: s.range for s in deployment.sensors if hasattr(s, "range")}
         self._min_estimate_variance = _MIN_ESTIMATE_VARIANCE / deployment.metres_per_unit ** 2
         self._pending: dict[int, list[tuple[float, str, PositionReport]]] = {}
         self.late_estimates = 0
+
+    def __setstate__(self, state: dict) -> None:
+        """From a checkpoint. One taken before exits (``MCMCDAConfig.exit_depth``) goes on as a
+        tracker made now would: the sensor field's edge from its fusion, and the default exit
+        depth (none for real PIR, :mod:`.pir_settings`) in its units."""
+        self.__dict__.update(state)
+        chain = self.mcmcda
+        if chain.field_depth is None:
+            chain.field_depth = self.fusion.grid.depth
+        if "exit_depth" not in vars(chain.config):
+            metres_per_unit = math.sqrt(_MIN_ESTIMATE_VARIANCE / self._min_estimate_variance)
+            real_pir = any(getattr(s, "hold", None) is not None for s in self.fusion.sensors.values())
+            exit_depth = None if real_pir else MCMCDAConfig().in_units(metres_per_unit).exit_depth
+            chain.config = replace(chain.config, exit_depth=exit_depth)
 
     def update(self, message: Transition | LocalEstimate) -> list[PositionReports | TrackSet]:
         """A transition: the scans it completes, fused and tracked. A peer's estimate: a report
