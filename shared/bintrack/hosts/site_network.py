@@ -143,7 +143,11 @@ class SiteNetwork:
             if name.startswith(mine):
                 delete_namespace(name)
         if self.tag in links():
-            ip("link", "delete", self.tag)
+            # the switch's namespace going takes this end of its veth pair with it, asynchronously:
+            # it may vanish between the listing and the delete
+            ip("link", "delete", self.tag, check=False)
+            if self.tag in links():
+                ip("link", "delete", self.tag)
 
     def _claim(self) -> None:
         """Hold the lock of a free subnet ``k`` (a file per subnet, locked while this run lives)."""
