@@ -81,7 +81,10 @@ class View(Service):
         except OSError as exc:
             raise CommandError(str(exc)) from None
         self.url = page_url(self.args.bind, sock.getsockname()[1], token)
-        print(served_line("view", self.args.bind, self.args.port, sock, token), file=sys.stderr, flush=True)
+        # one write: unbuffered, print() sends the line and its newline apart, and another
+        # process sharing the stream can land between them
+        sys.stderr.write(served_line("view", self.args.bind, self.args.port, sock, token) + "\n")
+        sys.stderr.flush()
         self.subscribe(self.keys.all(), self.on_sample)
         self.services: set[tuple[str, str]] = set()
         self.follow_presence(self.on_presence)

@@ -254,8 +254,9 @@ def serve_recording(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise CommandError(str(exc)) from None
         t0, t1 = source.range
-        print(f"{served_line('view', args.bind, args.port, sock, token)} ({source.path.name}: {t1 - t0:.1f} s of event time, "
-              f"{len(source.recording.deployment.sensors)} sensors)", file=sys.stderr, flush=True)
+        sys.stderr.write(f"{served_line('view', args.bind, args.port, sock, token)} ({source.path.name}: "
+                         f"{t1 - t0:.1f} s of event time, {len(source.recording.deployment.sensors)} sensors)\n")
+        sys.stderr.flush()
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
