@@ -67,6 +67,17 @@ def hosts_tag(up: Up) -> str:
     return line.split("linked to this machine's ")[1].split()[0]
 
 
+def recorded_run_past_ten_seconds(field: Path, tmp_path: Path) -> tuple[Up, Path, str]:
+    """``up --regions 4 --hosts --speed 2`` of ``field``, recording; (up, the recording, its
+    bthost<K>) once event time has passed 10 s."""
+    recording = tmp_path / "run.mcap"
+    up = Up(str(field), "--tracker", "mcmcda", "--regions", "4", "--hosts", "--speed", "2", "--record",
+            str(recording), "--exit-at-end")
+    tag = hosts_tag(up)
+    up.event_time_at_least(10.0)
+    return up, recording, tag
+
+
 @needs_namespaces
 def test_up_on_four_hosts_gives_the_offline_rows_and_removes_its_network(regions_field, tmp_path):
     field, offline = regions_field
@@ -167,11 +178,7 @@ def test_a_site_cut_off_for_ten_seconds_loses_nothing(regions_field, tmp_path):
     and the merge the region's scans, each saying how many: the run ends with the offline rows,
     identities included."""
     field, offline = regions_field
-    recording = tmp_path / "run.mcap"
-    up = Up(str(field), "--tracker", "mcmcda", "--regions", "4", "--hosts", "--speed", "2", "--record",
-            str(recording), "--exit-at-end")
-    tag = hosts_tag(up)
-    up.event_time_at_least(10.0)
+    up, recording, tag = recorded_run_past_ten_seconds(field, tmp_path)
     site = f"{tag}-r1c1"
     address = ip("-j", "address", "show", "dev", "uplink", namespace=site)
     address = json.loads(address)[0]["addr_info"][0]["local"]
@@ -206,11 +213,7 @@ def test_a_whole_site_killed_and_restarted_loses_nothing(regions_field, tmp_path
     they resume from their checkpoints and fetch what they missed, and the run ends with the
     offline rows."""
     field, offline = regions_field
-    recording = tmp_path / "run.mcap"
-    up = Up(str(field), "--tracker", "mcmcda", "--regions", "4", "--hosts", "--speed", "2", "--record",
-            str(recording), "--exit-at-end")
-    tag = hosts_tag(up)
-    up.event_time_at_least(10.0)
+    up, recording, tag = recorded_run_past_ten_seconds(field, tmp_path)
     pids = ip("netns", "pids", f"{tag}-r0c1").split()
     assert len(pids) == 3, pids
     for pid in pids:
