@@ -216,3 +216,59 @@ def test_an_identity_made_while_the_owner_was_cut_off_gives_way_to_the_owners_wh
     assert all(live[k] == {1} for k in live if 10.0 <= k < 12.5)  # east cut off: west's own identity
     assert all(live[k] == {0} for k in live if k >= 12.5), live  # east back: its identity, on both sides
     assert max(live) == 20.0 and 40.0 - 20.0 < 27.5  # the target ends on west's side
+
+
+def test_a_target_that_left_a_cut_off_region_takes_back_its_identity_from_the_regions_late_scans():
+    """A target walking west: east tracks it and is cut off at t = 4.5 s; the target crosses
+    into west's own half during the cut, where west picks it up (a new identity, provisional:
+    east could have been tracking it there). East is back at t = 25 s, when the target is out
+    of its reach, so east never shows it live again; but east's scans of the cut, come in after
+    their time was merged, show its track on the target: from then on the target carries east's
+    identity again."""
+    merge = RegionMerge(RegionMap(deployment(HALVES)), MergeConfig(gate=5.0, handover=5.0, reach=8.0))
+    merge.back("west"), merge.back("east")
+    out = []
+    t = 0.0
+    while t <= 30.0:
+        x = 40.0 - t
+        if t == 4.5:
+            out += merge.lost("east")
+        if t == 25.0:
+            merge.back("east")
+            for k in range(10, 50):  # east's scans of the cut: its track followed the target to x = 21
+                merge.add("east", scan(k / 2, *([(7, 40.0 - k / 2 + 0.1, 20.0)] if k / 2 <= 19.0 else [])))
+        east_live = t < 4.5 or t >= 25.0
+        merge.add("west", scan(t, *([(1, x - 0.1, 20.0)] if t >= 14.0 else [])))
+        if east_live:
+            merge.add("east", scan(t, *([(7, x + 0.1, 20.0)] if x >= 21.0 else [])))
+        out += merge.progress("west", t) + (merge.progress("east", t) if east_live else [])
+        t += 0.5
+    live = {m.t: {tr.track for tr in m.tracks if not tr.stale} for m in out}
+    assert all(live[k] == {0} for k in live if k < 4.5)
+    assert all(live[k] == {1} for k in live if 14.0 <= k < 25.0), live  # on west's side, east cut off
+    assert all(live[k] == {0} for k in live if k >= 25.0), live  # east's late scans: its identity again
+    assert not any(tr.stale for m in out if m.t >= 25.0 for tr in m.tracks)
+
+
+def test_a_regions_late_scans_leave_identities_alone_where_no_provisional_target_lies():
+    """The same walk, but west's track is never near east's late track (it walks 10 m north of
+    it): west's identity stays."""
+    merge = RegionMerge(RegionMap(deployment(HALVES)), MergeConfig(gate=5.0, handover=5.0, reach=8.0))
+    merge.back("west"), merge.back("east")
+    out = []
+    for k in range(61):
+        t = k / 2
+        if t == 4.5:
+            out += merge.lost("east")
+        if t == 25.0:
+            merge.back("east")
+            for j in range(10, 50):
+                merge.add("east", scan(j / 2, *([(7, 40.0 - j / 2, 20.0)] if j / 2 <= 19.0 else [])))
+        east_live = t < 4.5 or t >= 25.0
+        merge.add("west", scan(t, *([(1, 40.0 - t, 30.0)] if t >= 14.0 else [])))
+        if east_live:
+            merge.add("east", scan(t, *([(7, 40.0 - t, 20.0)] if t < 4.5 else [])))
+        out += merge.progress("west", t) + (merge.progress("east", t) if east_live else [])
+    live = {m.t: {tr.track for tr in m.tracks if not tr.stale} for m in out}
+    assert all(live[k] == {0} for k in live if k < 4.5)
+    assert all(live[k] == {1} for k in live if k >= 14.0), live

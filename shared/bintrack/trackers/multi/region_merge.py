@@ -15,9 +15,13 @@ ids. At each scan the merge
    target crosses a border, the neighbour's track, linked to it while both saw the target,
    carries it on), else that of a track of another region that ended within ``handover``
    seconds and whose position predicted by its velocity lies within ``gate``, else a new one.
-   A new identity made where the region owning the target was cut off (stale) is provisional:
-   once that region is back and links its own track to the target, the target carries the
-   owner's identity again (the identity is kept across the cut).
+   A new identity made where a region that was cut off (stale) could be tracking the target
+   (within ``reach`` of it) is provisional: once that region is back and links its own track to
+   the target, the target carries that region's identity again (the identity is kept across the
+   cut). The region's scans of the cut, which come in after their time was merged, are still
+   read for this: where one of its tracks lay on a provisional target at the same scan, the
+   target takes the track's identity from then on (the target walked out of the region while it
+   was cut off).
 
 A region whose base station is gone (:meth:`RegionMerge.lost`) is not waited for; its last
 tracks stay in the output with ``stale`` set until it is back.
@@ -75,9 +79,13 @@ class RegionMerge:
     # identities made for a track where the region owning its position was stale: the owner's
     # own identity for that target takes over once the owner is back and shows it
     provisional: set[int] = field(default_factory=set)
+    # the merged scans of the last ``RECALL`` seconds while a region was stale: its late scans
+    # are read against them
+    recent: dict[float, TrackSet] = field(default_factory=dict)
 
     def __setstate__(self, state: dict) -> None:
         state.setdefault("provisional", set())  # a checkpoint from before provisional identities
+        state.setdefault("recent", {})
         self.__dict__.update(state)
 
     def __post_init__(self):
@@ -93,6 +101,8 @@ class RegionMerge:
         self.tracker = tracks.tracker
         if tracks.t > self.emitted_up_to:
             self.pending.setdefault(_key(tracks.t), {})[region] = tracks
+        else:
+            self._reconcile(region, tracks)
         return []
 
     def progress(self, region: str, t: float) -> list[TrackSet]:
@@ -130,7 +140,50 @@ class RegionMerge:
             scans = self.pending.pop(t)
             out.append(self._merge(t, scans))
             self.emitted_up_to = t
+            if self.stale:
+                self.recent[t] = out[-1]
+            for old in [k for k in self.recent if k < t - RECALL]:
+                del self.recent[old]
         return out
+
+    def _reconcile(self, region: str, late: TrackSet) -> None:
+        """Region ``region``'s scan ``late``, come in after its time was merged (it was cut off):
+        a provisional target shown at that scan within ``gate`` of one of the region's tracks
+        takes the track's identity, nearest pairs first, unless that identity is shown elsewhere."""
+        merged = self.recent.get(_key(late.t))
+        if merged is None:
+            return
+        in_use = {tr.track for tr in self._shown_last() if not tr.stale}
+        pairs = []
+        for track in late.tracks:
+            gid = self.ids.get((region, track.track))
+            if gid is None or gid in self.provisional or gid in in_use \
+                    or self.regions.distance(region, track.x, track.y) > self._reach:
+                continue
+            for shown in merged.tracks:
+                if shown.track in self.provisional and not shown.stale:
+                    d = math.hypot(shown.x - track.x, shown.y - track.y)
+                    if d <= self._gate:
+                        pairs.append((d, shown.track, gid))
+        taken: set[int] = set()
+        for _, provisional, gid in sorted(pairs):
+            if provisional in self.provisional and gid not in taken:
+                self._rename(provisional, gid)
+                taken.add(gid)
+
+    def _rename(self, old: int, new: int) -> None:
+        """Identity ``old`` (provisional) is ``new`` from now on."""
+        self.provisional.discard(old)
+        for member, gid in self.ids.items():
+            if gid == old:
+                self.ids[member] = new
+        if old in self.shown:
+            shown = self.shown.pop(old)
+            self.shown[new] = _Shown(shown.t, shown.track.model_copy(update={"track": new}))
+
+    def _shown_last(self) -> list[Track]:
+        """The tracks of the latest merged scan."""
+        return [s.track for s in self.shown.values() if s.t == self.emitted_up_to]
 
     def _merge(self, t: float, scans: dict[str, TrackSet]) -> TrackSet:
         for region, scan in scans.items():
@@ -237,7 +290,7 @@ class RegionMerge:
                 best_gid, best_d = gid, d
         if best_gid is not None:
             return best_gid
-        if self.regions.owner(best.x, best.y) in self.stale:
+        if any(self.regions.distance(r, best.x, best.y) <= self._reach for r in self.stale):
             self.provisional.add(self.next_id)
         self.next_id += 1
         return self.next_id - 1
@@ -264,6 +317,9 @@ class RegionMerge:
         for member in [m for m, seen in self.seen.items() if t - seen > self.config.handover and m[0] not in self.stale]:
             del self.seen[member]
             self.ids.pop(member, None)
+
+
+RECALL = 30.0  # s: how far back a region's late scans are read (a sensor agent's catch-up holds 30 s)
 
 
 def _key(t: float) -> float:
