@@ -153,6 +153,47 @@ def test_a_departed_upstream_holds_for_the_grace_in_wall_time_however_fast_the_c
     assert mark.bound(27.0) == 30.0  # gone for good: 2 s of event time and 3 s of wall time
 
 
+def test_an_upstream_silent_behind_a_stale_token_is_taken_for_gone_until_it_reports_again():
+    # a router of the mesh kept s1's token after the link to s1's site was cut (the others
+    # dropped it): its reports stop while the clock goes on. Under flow control a connected
+    # instance never falls more than the hold and the lead behind; s1 stays that far behind for
+    # 10 s of wall time and is then taken for gone, until a report comes from it again
+    wall = [0.0]
+    mark = UpstreamWatermark({"sensor_agent"}, hold=2.0, grace=3.0, now=lambda: wall[0], silent_after=10.0)
+    mark.on_liveliness("sensor_agent", "s1", True)
+    mark.on_liveliness("sensor_agent", "s2", True)
+    mark.reported("sensor_agent", "s1", 16.0)
+    mark.reported("sensor_agent", "s2", 16.0)
+    lead = 1.0
+    assert mark.bound(19.0, lead) == 16.0  # 3 s behind: not more than the hold and the lead
+    mark.reported("sensor_agent", "s2", 19.5)
+    assert mark.bound(19.5, lead) == 16.0  # now behind: its 10 s start
+    wall[0] += 9.9
+    mark.reported("sensor_agent", "s2", 29.0)
+    assert mark.bound(29.0, lead) == 16.0
+    wall[0] += 0.1
+    assert mark.bound(29.0, lead) == 29.0  # s1 taken for gone: s2 alone bounds
+    mark.reported("sensor_agent", "s2", 31.0)
+    assert mark.bound(31.0, lead) == 31.0
+    mark.reported("sensor_agent", "s1", 30.5)  # the link healed: s1 reports again and bounds again
+    assert mark.bound(31.0, lead) == 30.5
+    # a lag that ends before the 10 s does not count, and an instance that never reported is
+    # not taken for gone (its first report may come after the first ticks)
+    mark.reported("sensor_agent", "s1", 31.0)
+    mark.on_liveliness("sensor_agent", "s3", True)
+    wall[0] += 5.0
+    assert mark.bound(40.0, lead) == float("-inf")
+    mark.reported("sensor_agent", "s3", 40.0)
+    wall[0] += 6.0
+    assert mark.bound(40.0, lead) == 31.0  # s1 and s2 behind for 6 s only
+    mark.reported("sensor_agent", "s1", 40.0)
+    mark.reported("sensor_agent", "s2", 40.0)
+    wall[0] += 20.0
+    assert mark.bound(40.0, lead) == 40.0
+    mark.on_liveliness("sensor_agent", "s1", False)  # a token withdrawn at last, after all that
+    assert mark.bound(40.0, lead) == 40.0
+
+
 def test_the_watermark_waits_for_an_instance_of_each_upstream_service():
     mark = UpstreamWatermark({"sensor_agent", "peer_agent"}, hold=2.0, grace=0.0)
     mark.on_liveliness("sensor_agent", "s1", True)

@@ -24,6 +24,12 @@ DEPARTED_HOLD = 2.0  # s of event time an upstream instance that went away still
 # time out in a fraction of a second. up restarts a router after 0.5 s and the sessions reconnect
 # within about 1 s; at --speed 1 the event-time hold alone lasts longer than this
 DEPARTED_GRACE = 3.0
+# s of wall time an instance whose token is still declared may stay silent, its last report more
+# than the hold and the lead behind the clock, before it is taken for gone: a router of the mesh
+# can keep the token of an instance behind a cut link after the others dropped it (a stale route;
+# eclipse-zenoh/zenoh#2602), and a consumer behind that router would wait for it for ever.
+# Under flow control a connected instance never lags the clock that far.
+SILENT_AFTER = 10.0
 
 
 class Watermark:
@@ -79,7 +85,9 @@ class UpstreamWatermark:
     until it is back (a restart under the same id) or the clock advanced ``hold`` s plus the
     replay's lead past the first tick seen after the token went and ``grace`` s of wall time
     (``now``, s) have passed since (it is gone for good), so that what it sends after a restart, or
-    once its token is back over a healed link, is not late. The replay holds event time while an
+    once its token is back over a healed link, is not late. An instance whose token is still there
+    but whose last report has stayed more than ``hold`` s plus the lead behind the clock for
+    ``silent_after`` s of wall time is taken for gone as well (logged), until it reports again. The replay holds event time while an
     awaited service is gone, but up to its lead (``--max-ahead`` clock periods, the ``lead`` given
     to :meth:`bound`) of ticks it sent before may still be on their way: they arrive on another path
     than the departure, so they must not use up the hold. Until an instance of each of ``services``
@@ -89,10 +97,12 @@ class UpstreamWatermark:
     """
 
     def __init__(self, services, hold: float, grace: float = DEPARTED_GRACE,
-                 now: Callable[[], float] = time.monotonic, who: str = "bintrack"):
+                 now: Callable[[], float] = time.monotonic, who: str = "bintrack",
+                 silent_after: float = SILENT_AFTER):
         self.services = frozenset(services)
         self.hold = hold
         self.grace = grace
+        self.silent_after = silent_after
         self.now = now
         self.who = who
         self.alive: set[tuple[str, str]] = set()
@@ -101,6 +111,8 @@ class UpstreamWatermark:
         # the wall time (s) it went]
         self.departed: dict[tuple[str, str], list] = {}
         self.unseen = set(self.services)  # services none of whose instances has been live yet
+        self.lagging: dict[tuple[str, str], float] = {}  # live instance → wall time (s) it fell behind
+        self.silent: set[tuple[str, str]] = set()  # taken for gone while their token is still declared
 
     def on_liveliness(self, service: str, instance: str, present: bool) -> None:
         entry = (service, instance)
@@ -109,21 +121,31 @@ class UpstreamWatermark:
         if present:
             self.alive.add(entry)
             self.departed.pop(entry, None)
+            self.silent.discard(entry)
             self.unseen.discard(service)
         elif entry in self.alive:
             self.alive.discard(entry)
+            self.lagging.pop(entry, None)
             self.departed[entry] = [None, self.now()]  # its floor: its last report, −inf if it never reported
+        else:
+            self.silent.discard(entry)
 
     def reported(self, service: str, instance: str, t: float) -> None:
         entry = (service, instance)
         self.progress[entry] = max(t, self.progress.get(entry, -math.inf))
+        if entry in self.silent:
+            self.silent.discard(entry)
+            self.alive.add(entry)
+            log.info("%s: %s %s reports again (t=%g s); the watermark follows it", self.who, *entry, t)
 
     def bound(self, tick: float, lead: float = 0.0) -> float:
         """The watermark (s) the upstream allows when the latest clock tick is ``tick`` (s) and
         the replay may have sent ticks up to ``lead`` s of event time ahead of what its consumers
         acknowledged."""
         least = -math.inf if self.unseen else math.inf
-        for entry in self.alive:
+        for entry in list(self.alive):
+            if self._silent(entry, tick, lead):
+                continue
             least = min(least, self.progress.get(entry, -math.inf))
         for entry, went in list(self.departed.items()):
             if went[0] is None:
@@ -137,3 +159,22 @@ class UpstreamWatermark:
             else:
                 least = min(least, self.progress.get(entry, -math.inf))
         return least
+
+    def _silent(self, entry: tuple[str, str], tick: float, lead: float) -> bool:
+        """Whether live ``entry``, behind the clock ``tick`` (s) by more than the hold and ``lead``
+        for ``silent_after`` s of wall time, is now taken for gone (it had reported before)."""
+        report = self.progress.get(entry, -math.inf)
+        if not math.isfinite(report) or tick - report <= self.hold + lead:
+            self.lagging.pop(entry, None)
+            return False
+        since = self.lagging.setdefault(entry, self.now())
+        if self.now() - since < self.silent_after:
+            return False
+        del self.lagging[entry]
+        self.alive.discard(entry)
+        self.progress.pop(entry, None)
+        self.silent.add(entry)
+        log.warning("%s: %s %s has not reported since t=%g s, %g s of wall time, though its token is still "
+                    "declared (its router out of reach?); the watermark no longer waits for it", self.who, *entry,
+                    report, self.silent_after)
+        return True
