@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import math
 import sys
 
 import zenoh
@@ -122,7 +123,18 @@ class Merge(Service):
         region = self.region_of(sample)
         tick = self.decode(Clock, sample) if region is not None else None
         if tick is not None:
+            if self.departures.reports(region):
+                self.fetch_missed(region)
             self.emit(self.merge.progress(region, tick.t))
+
+    def fetch_missed(self, region: str) -> None:
+        """Region ``region``'s base station is back: what it published while its link was down is
+        fetched before its progress can release the scans (a reply takes milliseconds: the loop
+        waits on purpose)."""
+        fetched = self.fetch_region_tracks(self.merge.emitted_up_to, [region])
+        for _, tracks in fetched:
+            self.merge.add(region, tracks)
+        log.warning("%s: region %s's base station is back; %d of its scans fetched", self.name, region, len(fetched))
 
     def on_presence(self, parsed: ParsedKey, present: bool) -> None:
         """A region's base station's ``region/<r>/alive`` token came or went."""
@@ -133,15 +145,12 @@ class Merge(Service):
             return
         if present:
             if self.departures.back(region, region in self.merge.stale):
-                # what it published while its link was down: fetched before its progress can
-                # release the scans (a reply takes milliseconds: the loop waits on purpose)
-                fetched = self.fetch_region_tracks(self.merge.emitted_up_to, [region])
-                for _, tracks in fetched:
-                    self.merge.add(region, tracks)
-                log.warning("%s: region %s's base station is back; %d of its scans fetched", self.name, region,
-                            len(fetched))
+                self.fetch_missed(region)
             self.merge.back(region)
             return
+        self.went(region)
+
+    def went(self, region: str) -> None:
         latest = self.tracks.latest
         self.departures.went(region, sum(1 for tr in (latest.tracks if latest else ()) if tr.region == region))
 
@@ -152,7 +161,11 @@ class Merge(Service):
         tick = self.decode(Clock, sample)
         if tick is None:
             return
-        for region in self.departures.tick(tick.t, max(self.guard.steps.values(), default=0.0)):
+        lead = max(self.guard.steps.values(), default=0.0)
+        declared = {r: self.merge.final.get(r, -math.inf) for r in self.merge.live}
+        for region in self.departures.silent(declared, tick.t, lead):
+            self.went(region)
+        for region in self.departures.tick(tick.t, lead):
             self.emit(self.merge.lost(region))
         self.report_progress(tick.t, sent=self.sent)
 

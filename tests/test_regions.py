@@ -272,3 +272,23 @@ def test_a_regions_late_scans_leave_identities_alone_where_no_provisional_target
     live = {m.t: {tr.track for tr in m.tracks if not tr.stale} for m in out}
     assert all(live[k] == {0} for k in live if k < 4.5)
     assert all(live[k] == {1} for k in live if k >= 14.0), live
+
+
+def test_a_region_silent_behind_a_stale_token_is_taken_for_gone_until_it_reports_again():
+    """The merge's router kept the token of region east's base station after the link to it was
+    cut: east's progress stays behind the clock. After 10 s of wall time more than the hold
+    (plus the lead) behind it is taken for gone, once; a progress report from it brings it back."""
+    from bintrack.live.region_departures import RegionDepartures
+    wall = [0.0]
+    departures = RegionDepartures("merge", now=lambda: wall[0])
+    assert departures.silent({"west": 10.0, "east": 10.0}, 12.0, 0.5) == []  # 2 s behind: within the hold
+    assert departures.silent({"west": 14.0, "east": 10.0}, 14.0, 0.5) == []  # east behind from now
+    wall[0] += 9.9
+    assert departures.silent({"west": 24.0, "east": 10.0}, 24.0, 0.5) == []
+    wall[0] += 0.1
+    assert departures.silent({"west": 24.0, "east": 10.0, "north": float("-inf")}, 24.0, 0.5) == ["east"]
+    departures.went("east", 1)
+    assert departures.silent({"west": 25.0, "east": 10.0}, 25.0, 0.5) == []  # once
+    assert departures.tick(25.0, 0.5) == [] and departures.tick(27.5, 0.5) == ["east"]  # given up after the hold
+    assert not departures.reports("west")
+    assert departures.reports("east") and not departures.reports("east")  # back, once
