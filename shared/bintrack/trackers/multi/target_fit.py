@@ -82,7 +82,7 @@ class FitGrid(Protocol):
     """What the fit reads of the grid (:class:`bintrack.trackers.multi.fusion.GridFusion`):
     cells of side ``cell`` (units) at ``cells`` (n × 2), the sparse cells × sensors ``cover``, each
     cell's sensing range ``cell_range``, the per-sensor log likelihood ratios of eq. (4), and for
-    real PIR the soft footprints that place a report (``soft``)."""
+    real PIR the soft footprints that place a report (``soft``) and confirm the targets (``counting``)."""
 
     config: FusionConfig
     ids: list[str]
@@ -95,6 +95,7 @@ class FitGrid(Protocol):
     log_miss_ratio: np.ndarray
     shared_speed: float
     soft: SoftFootprint | None
+    counting: SoftFootprint | None
 
     def depth(self, x: float, y: float) -> float: ...
 
