@@ -70,14 +70,14 @@ def test_a_bad_spread_is_refused():
 
 def test_soft_gains_count_one_person_under_a_soft_footprint_once():
     """Sensors 0-3 on a line 1 m apart: 1 and 2 fire. One person between them explains both;
-    a second person under sensor 2 adds less than the bar of a new target (2 nats) under the
-    soft footprints, though a disk of 0.6 m around the first would leave sensor 2 unexplained."""
+    given the first, a second person under sensor 2 adds less than the bar of a new target
+    (2 nats), while alone a person there would clear it."""
     soft = _line()
     y = np.array([0, 1, 1, 0])
     alone = soft.gains(np.array([(1.5, 0.0)]), y)
     assert alone[0] > 2.0
     pair = soft.gains(np.array([(1.5, 0.0), (2.0, 0.0)]), y)
-    assert pair[1] < 2.0
+    assert pair[1] < 2.0 < soft.gains(np.array([(2.0, 0.0)]), y)[0]
     # two people far apart, each under a firing sensor: each is needed
     far = SoftFootprint(np.array([(0.0, 0.0), (5.0, 0.0)]), np.full(2, 0.6), np.full(2, 0.7), np.full(2, 0.01))
     assert (far.gains(np.array([(0.0, 0.0), (5.0, 0.0)]), np.array([1, 1])) > 2.0).all()

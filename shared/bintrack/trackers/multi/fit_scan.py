@@ -251,7 +251,8 @@ class FitScan:
         return False
 
     def prune(self) -> None:
-        """Drop, one at a time, the target furthest below its threshold given the others."""
+        """Drop, one at a time, the target furthest below its threshold given the others; then,
+        with ``soft_count``, the same under the soft footprints (:meth:`_prune_soft`)."""
         while self.targets:
             margins = []
             for k, target in enumerate(self.targets):

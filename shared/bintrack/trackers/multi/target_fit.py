@@ -32,7 +32,8 @@ a target adds the weights of the sensors it covers that no other target covers (
    ``expected_split_gain``. Free to move within 3σ, it would otherwise settle between its
    person and an untracked one beside them (6–7 m apart, 8 m disks) and explain both.
 4. **Pruning.** A target whose gain has fallen below its threshold, once the others have moved,
-   is dropped.
+   is dropped. With ``soft_count`` (real PIR, off by default) so is one whose evidence given the
+   others falls below it under Gaussian footprints (:meth:`.SoftFootprint.gains`).
 5. **Reports.** A target's report is the mean and covariance of its cell under its own gain,
    given the other targets, over the cells within one range of it. That is the posterior of
    its position under a flat prior.
