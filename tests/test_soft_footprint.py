@@ -4,6 +4,8 @@ the fitted ``hold`` field (``pir_settings``)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -64,3 +66,35 @@ def test_only_a_fitted_deployment_gets_the_real_pir_settings():
 def test_a_bad_spread_is_refused():
     with pytest.raises(TrackerConfigError, match="soft_spread"):
         GridFusion(_room(hold=0.0), FusionConfig(soft_spread=0.0))
+
+
+def test_soft_gains_count_one_person_under_a_soft_footprint_once():
+    """Sensors 0-3 on a line 1 m apart: 1 and 2 fire. One person between them explains both;
+    given the first, a second person under sensor 2 adds less than the bar of a new target
+    (2 nats), while alone a person there would clear it."""
+    soft = _line()
+    y = np.array([0, 1, 1, 0])
+    alone = soft.gains(np.array([(1.5, 0.0)]), y)
+    assert alone[0] > 2.0
+    pair = soft.gains(np.array([(1.5, 0.0), (2.0, 0.0)]), y)
+    assert pair[1] < 2.0 < soft.gains(np.array([(2.0, 0.0)]), y)[0]
+    # two people far apart, each under a firing sensor: each is needed
+    far = SoftFootprint(np.array([(0.0, 0.0), (5.0, 0.0)]), np.full(2, 0.6), np.full(2, 0.7), np.full(2, 0.01))
+    assert (far.gains(np.array([(0.0, 0.0), (5.0, 0.0)]), np.array([1, 1])) > 2.0).all()
+
+
+def test_a_bad_soft_count_is_refused():
+    with pytest.raises(TrackerConfigError, match="soft_count"):
+        GridFusion(_room(hold=0.0), FusionConfig(soft_count=-1.0))
+
+
+def test_soft_count_drops_a_target_the_soft_footprints_do_not_need():
+    """Six sensors 1 m apart, 1, 2 and 4 fire: the disks (1.2 m) need two people; Gaussian
+    footprints of σ = R (soft_count 1) explain sensor 4 by the person near 2, and keep one."""
+    sensors = [DiskSensor(id=f"s{i}", x=float(i), y=1.0, range=1.2, pd=0.7, pfa=0.01, period=0.5, hold=0.0)
+               for i in range(6)]
+    room = Deployment(name="room", units="m", region=Region(xmin=-1, ymin=0, xmax=6, ymax=2), sensors=sensors)
+    fusion, _ = pir_settings(room, FusionConfig(), MCMCDAConfig())
+    pattern = np.array([0, 1, 1, 0, 1, 0])
+    assert len(GridFusion(room, fusion).reports(pattern)) == 2
+    assert len(GridFusion(room, replace(fusion, soft_count=1.0)).reports(pattern)) == 1

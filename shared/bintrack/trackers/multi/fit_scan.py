@@ -251,7 +251,8 @@ class FitScan:
         return False
 
     def prune(self) -> None:
-        """Drop, one at a time, the target furthest below its threshold given the others."""
+        """Drop, one at a time, the target furthest below its threshold given the others; then,
+        with ``soft_count``, the same under the soft footprints (:meth:`_prune_soft`)."""
         while self.targets:
             margins = []
             for k, target in enumerate(self.targets):
@@ -259,6 +260,23 @@ class FitScan:
                     margins.append(self._support(target, self._gains_on(target.gate, k)) - self.config.expected_gain)
                 else:
                     margins.append(float(self._gains_on(np.array([target.cell]), k)[0]) - self.config.min_gain)
+            worst = int(np.argmin(margins))
+            if margins[worst] >= 0:
+                break
+            self._remove(worst)
+            self.settle()
+        self._prune_soft()
+
+    def _prune_soft(self) -> None:
+        """Real PIR (``soft_count``): drop, one at a time, the target whose evidence given the
+        others under the soft footprints falls furthest below its bar (min_gain for a new target,
+        expected_gain for a track's): one walker's far firings need no second target."""
+        counting = self.grid.counting
+        while counting is not None and self.targets:
+            points = self.grid.cells[[t.cell for t in self.targets]].reshape(-1, 2)
+            bars = np.array([self.config.expected_gain if t.expectation is not None else self.config.min_gain
+                             for t in self.targets])
+            margins = counting.gains(points, self.hits) - bars
             worst = int(np.argmin(margins))
             if margins[worst] >= 0:
                 return

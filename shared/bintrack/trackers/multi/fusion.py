@@ -54,6 +54,9 @@ class GridFusion:
     soft: SoftFootprint | None = None
     """real PIR: the Gaussian footprints that place a "fit" target's report
     (``FusionConfig.soft_spread``); a class default, so that a grid pickled before it existed loads"""
+    counting: SoftFootprint | None = None
+    """real PIR: the Gaussian footprints that confirm a "fit" scan's targets
+    (``FusionConfig.soft_count``); a class default, as ``soft``"""
 
     def __init__(self, deployment: Deployment, config: FusionConfig = FusionConfig()):
         sensors = [s for s in deployment.sensors if isinstance(s, (DiskSensor, SectorSensor))]
@@ -69,6 +72,8 @@ class GridFusion:
             raise TrackerConfigError(f"fusion shared_edge must be at least 0 sensing ranges, got {config.shared_edge}")
         if config.soft_spread is not None and not config.soft_spread > 0:
             raise TrackerConfigError(f"fusion soft_spread must be positive, got {config.soft_spread}")
+        if config.soft_count is not None and not config.soft_count > 0:
+            raise TrackerConfigError(f"fusion soft_count must be positive, got {config.soft_count}")
         if config.threshold < 1:
             raise TrackerConfigError(f"fusion threshold n_d must be at least 1, got {config.threshold}")
         self.config = config
@@ -140,6 +145,8 @@ class GridFusion:
         """the longest sensing range, units"""
         if config.soft_spread is not None:
             self.soft = SoftFootprint(positions, ranges * config.soft_spread, pd, pfa)
+        if config.soft_count is not None:
+            self.counting = SoftFootprint(positions, ranges * config.soft_count, pd, pfa)
         self._fit = TargetFit(self)
 
     def __reduce__(self):

@@ -63,6 +63,11 @@ class FusionConfig:
     """real PIR: a "fit" target's report is its position's posterior under Gaussian footprints of
     σ = soft_spread × each sensor's range (:mod:`.soft_footprint`); None: under the disks (the
     paper's model)"""
+    soft_count: float | None = None
+    """real PIR: after the fit, a target stays only if its evidence given the other targets
+    under Gaussian footprints of σ = soft_count × each sensor's range reaches ``min_gain`` (a
+    new target) or ``expected_gain`` (a track's) (:meth:`.SoftFootprint.gains`); None: the
+    disks alone count the targets"""
     explained: float = 1.0
     """"explain": a report explains the detections of sensors within this multiple of their
     sensing range of it"""

@@ -32,7 +32,8 @@ a target adds the weights of the sensors it covers that no other target covers (
    ``expected_split_gain``. Free to move within 3σ, it would otherwise settle between its
    person and an untracked one beside them (6–7 m apart, 8 m disks) and explain both.
 4. **Pruning.** A target whose gain has fallen below its threshold, once the others have moved,
-   is dropped.
+   is dropped. With ``soft_count`` (real PIR, off by default) so is one whose evidence given the
+   others falls below it under Gaussian footprints (:meth:`.SoftFootprint.gains`).
 5. **Reports.** A target's report is the mean and covariance of its cell under its own gain,
    given the other targets, over the cells within one range of it. That is the posterior of
    its position under a flat prior.
@@ -82,7 +83,7 @@ class FitGrid(Protocol):
     """What the fit reads of the grid (:class:`bintrack.trackers.multi.fusion.GridFusion`):
     cells of side ``cell`` (units) at ``cells`` (n × 2), the sparse cells × sensors ``cover``, each
     cell's sensing range ``cell_range``, the per-sensor log likelihood ratios of eq. (4), and for
-    real PIR the soft footprints that place a report (``soft``)."""
+    real PIR the soft footprints that place a report (``soft``) and confirm the targets (``counting``)."""
 
     config: FusionConfig
     ids: list[str]
@@ -95,6 +96,7 @@ class FitGrid(Protocol):
     log_miss_ratio: np.ndarray
     shared_speed: float
     soft: SoftFootprint | None
+    counting: SoftFootprint | None
 
     def depth(self, x: float, y: float) -> float: ...
 

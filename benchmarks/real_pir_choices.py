@@ -1,0 +1,173 @@
+"""Real PIR: the tracker's choices tried on the selection sets only (issue 38, second round).
+
+    .venv/bin/python benchmarks/real_pir_choices.py [--data ../shared/realdata/irtracking] [--seeds N] [--jobs 2]
+
+Never r1-medium (the sequence reported by ``benchmarks/real_sensors.py``). The sets:
+
+* ``r1-easy``: the recording, calibrated from the detections alone, mcmcda seeds 0..N−1;
+* ``sim``: r1-easy's annotated people walked again through its fitted sensors (``bintrack
+  simulate recording --like``: disk footprints, per-sensor pd and pfa), seeds 1..4;
+* ``soft``: the same, but each sensor's footprint soft (paper 001's linear law from 0.6 R to
+  1.5 R, R the fitted radius), then calibrated again from the simulated detections alone with
+  the stated 0.7 m as the only prior, seeds 1..3 (its firing rate against distance matches the
+  real one to 1.5 m);
+* ``crowd``/``crowd-soft``: as ``sim``/``soft`` with a denser room: every second person of
+  r1-easy walks a second time, mirrored across the room (x → 8.6 − x) and 50 s later (wrapping
+  round), 5.1 people on average and up to 7, as crowded as r1-medium is said to be.
+
+Each variant changes one setting of :mod:`bintrack.trackers.multi.pir_settings`; printed per set:
+mean MOTA, count error, GOSPA (c = 2 m), FP, FN, identity switches (CLEAR MOT at 1.5 m, greedy,
+area [0, 8] × [0, 14] m, as ``benchmarks/real_sensors.py``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+from collections import defaultdict
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
+from pathlib import Path
+
+VARIANTS = {
+    "today's settings": ({}, {}),
+    "soft count, sigma = R/2": ({"soft_count": 0.5}, {}),
+    "soft count, sigma = 0.8 R": ({"soft_count": 0.8}, {}),
+    "no shared reports": ({"shared": False}, {}),
+    "published from 3 reports (confirmation)": ({}, {"min_reports": 3}),
+    "a track's blob never split": ({"expected_split_gain": float("inf")}, {}),
+    "new target at 4 nats, not 2": ({"min_gain": 4.0}, {}),
+    "birth rate 3e-4 per m2, not 1e-3": ({}, {"birth_rate": 3e-4}),
+    "report pd 0.7, not 0.6": ({}, {"pd": 0.7}),
+}
+KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
+
+
+def bintrack(*args: str) -> None:
+    done = subprocess.run([sys.executable, "-m", "bintrack.cli", *args], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"bintrack {' '.join(args)} failed: {done.stderr.strip()}")
+
+
+def calibrate_blind(stated: Path, events: Path, truth: Path, out: Path) -> Path:
+    blind = out.with_name(out.name + "-blind")
+    blind.mkdir()
+    shutil.copyfile(stated / "deployment.json", blind / "deployment.json")
+    shutil.copyfile(events, blind / "events.csv")
+    bintrack("calibrate", str(blind), "--out", str(out))
+    shutil.copyfile(truth, out / "truth.csv")
+    return out
+
+
+def crowd_truth(fitted: Path, out: Path) -> Path:
+    """``fitted`` with a denser truth.csv (module text)."""
+    rows = list(csv.DictReader((fitted / "truth.csv").open()))
+    end = max(float(r["t"]) for r in rows)
+    ids = sorted({r["target"] for r in rows}, key=lambda k: (len(k), k))
+    extra = []
+    for r in rows:
+        if r["target"] not in ids[::2]:
+            continue
+        t, tag = float(r["t"]) + 50.0, "m"
+        if t > end:
+            t, tag = t - end - 0.5, "w"
+        extra.append({"t": f"{round(t * 2) / 2:g}", "target": tag + r["target"], "x": f"{8.6 - float(r['x']):.6f}", "y": r["y"]})
+    out.mkdir()
+    shutil.copyfile(fitted / "deployment.json", out / "deployment.json")
+    shutil.copyfile(fitted / "events.csv", out / "events.csv")
+    with (out / "truth.csv").open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["t", "target", "x", "y"])
+        w.writeheader()
+        w.writerows(sorted(rows + extra, key=lambda r: (float(r["t"]), r["target"])))
+    return out
+
+
+def soft_like(like: Path, out: Path) -> Path:
+    """``like`` with each sensor's footprint soft: linear law from 0.6 R to 1.5 R."""
+    out.mkdir()
+    d = json.loads((like / "deployment.json").read_text())
+    for s in d["sensors"]:
+        r = s["range"]
+        s.update(range_in=round(0.6 * r, 4), range=round(1.5 * r, 4), detection_law="linear")
+    (out / "deployment.json").write_text(json.dumps(d))
+    for f in ("events.csv", "truth.csv"):
+        shutil.copyfile(like / f, out / f)
+    return out
+
+
+def datasets(data: Path, work: Path, seeds: int) -> list[tuple[str, Path, int]]:
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from real_sensors import import_sequence
+
+    stated = import_sequence(data, "r1-easy", work / "stated", "--range", "0.7")
+    fitted = calibrate_blind(stated, stated / "events.csv", stated / "truth.csv", work / "r1-easy")
+    runs = [("r1-easy", fitted, seed) for seed in range(seeds)]
+    crowd = crowd_truth(fitted, work / "crowd-like")
+    for name, like in (("sim", fitted), ("crowd", crowd)):
+        for s in range(1, 5 if name == "sim" else 4):
+            bintrack("simulate", "recording", "--like", str(like), "--seed", str(s), "--out", str(work / f"{name}{s}"))
+            runs.append((name, work / f"{name}{s}", 0))
+        soft = soft_like(like, work / f"{name}-soft-like")
+        for s in range(1, 4):
+            raw = work / f"{name}-soft{s}-raw"
+            bintrack("simulate", "recording", "--like", str(soft), "--seed", str(s), "--out", str(raw))
+            runs.append((f"{name}-soft".replace("sim-", ""), calibrate_blind(stated, raw / "events.csv", raw / "truth.csv",
+                                                                          work / f"{name}-soft{s}"), 0))
+    return runs
+
+
+def score(variant: str, dataset: Path, seed: int) -> dict:
+    from bintrack.evaluation.eval_report import evaluate
+    from bintrack.formats import open_dataset, write_tracks
+    from bintrack.pipeline import output_rows, run_tracker
+    from bintrack.trackers.multi.fusion_config import FusionConfig
+    from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
+    from bintrack.trackers.multi.pir_settings import pir_settings
+    from bintrack.trackers.multi.tracker import MCMCDATracker
+
+    ds = open_dataset(dataset)
+    fusion, config = pir_settings(ds.deployment, FusionConfig(), MCMCDAConfig())
+    f, c = VARIANTS[variant]
+    tracker = MCMCDATracker(ds.deployment, fusion=replace(fusion, **f), config=replace(config, seed=seed, **c))
+    with tempfile.TemporaryDirectory() as tmp:
+        tracks = Path(tmp) / "tracks.csv"
+        write_tracks(tracks, output_rows(run_tracker(ds, tracker)))
+        figures = evaluate(ds, tracks, gospa_c=2.0, area=(0, 0, 8, 14)).as_dict()
+    return {k: figures[k] for k in KEYS}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[1] / ".." / "shared" / "realdata" / "irtracking")
+    parser.add_argument("--seeds", type=int, default=5, help="mcmcda seeds on r1-easy (default 5)")
+    parser.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
+    args = parser.parse_args()
+    if not (args.data / "r1-easy.txt").exists():
+        print(f"skipped: the recording is not in {args.data}")
+        return 0
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = datasets(args.data, Path(tmp), args.seeds)
+        jobs = [(v, name, path, seed) for v in VARIANTS for name, path, seed in runs]
+        with ProcessPoolExecutor(args.jobs) as pool:
+            results = list(pool.map(score, *zip(*[(v, p, s) for v, _, p, s in jobs])))
+    table: dict = defaultdict(lambda: defaultdict(list))
+    for (v, name, _, _), r in zip(jobs, results):
+        table[v][name].append(r)
+    print("Real PIR choices on the selection sets (never r1-medium): means over runs")
+    print(f"{'variant':<42} {'set':<11} {'runs':>4} {'MOTA':>6} {'count':>6} {'GOSPA':>6} {'FP':>6} {'FN':>6} {'IDSW':>5}")
+    for v, sets in table.items():
+        for name, rs in sets.items():
+            m = {k: statistics.mean(r[k] for r in rs) for k in KEYS}
+            print(f"{v:<42} {name:<11} {len(rs):>4} {m['mota']:>6.3f} {m['target_count_error_mean']:>6.3f} "
+                  f"{m['gospa_mean']:>6.3f} {m['false_positives']:>6.1f} {m['misses']:>6.1f} {m['mismatches']:>5.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
