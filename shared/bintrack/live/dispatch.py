@@ -37,7 +37,7 @@ class Dispatch:
         self._listen = [zenoh.KeyExpr(listen_key)]
         self._routes: list[tuple[zenoh.KeyExpr, Handler]] = []
         self._cache: dict[str, tuple[bool, tuple[Handler, ...], str]] = {}
-        self.heard: Counter = Counter()  # samples routed, by key kind
+        self.heard: Counter = Counter()  # narrowed: samples routed, by key kind
         self.sensors_heard: dict[str, set[str]] | None = None  # narrowed: kind → the sensors heard on it
 
     def add(self, key_expr: str, handler: Handler) -> bool:
@@ -66,11 +66,17 @@ class Dispatch:
         if entry is None:
             entry = self._entry(key)
         guarded, handlers, kind = entry
-        self.heard[kind] += 1
         if guarded and not self.guard.admit(sample):  # clock and control/* only from their token holders
             return
         for handler in handlers:
             handler(sample)
+
+    def route_counted(self, sample: zenoh.Sample) -> None:
+        """:meth:`route`, counting what was heard (a narrowed service's, for :meth:`summary`)."""
+        key = str(sample.key_expr)
+        entry = self._cache.get(key)
+        self.heard[entry[2] if entry is not None else self._entry(key)[2]] += 1
+        self.route(sample)
 
     def _entry(self, key: str) -> tuple[bool, tuple[Handler, ...], str]:
         """(whether the control guard must see it, the handlers, the key's kind) of a concrete

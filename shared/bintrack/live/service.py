@@ -110,7 +110,8 @@ class Service:
         (see :mod:`bintrack.live.dispatch`)."""
         if self.dispatch.add(key_expr, handler):
             self.follow_presence()
-            route = self.inbox.callback(self.dispatch.route)
+            dispatch = self.dispatch
+            route = self.inbox.callback(dispatch.route if dispatch.sensors_heard is None else dispatch.route_counted)
             for listen_key in self.dispatch.listen_keys:
                 self._declared.append(self.session.declare_subscriber(listen_key, route,
                                                                       allowed_origin=zenoh.Locality.REMOTE))
