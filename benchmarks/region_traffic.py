@@ -255,7 +255,8 @@ def table(figures: dict[int, list[dict]], seeds: int) -> None:
           "| messages out | kB received | kB sent | hub link: kB sent |")
     print("| ---: " * 13 + "|")
     for count, runs in figures.items():
-        print(f"| N = {count} | {cell(runs, 'in')} | {ratio(runs, 'in')} | {cell(runs, 'raw')} | {cell(runs, 'band')} | "
+        print(f"| N = {count} | {cell(runs, 'in')} | {ratio(runs, 'in')} | {cell(runs, 'raw')} | "
+              f"{cell(runs, 'band')} | "
               f"{cell(runs, 'control')} | {cell(runs, 'needed')} | {cell(runs, 'everything')} | "
               f"{ratio(runs, 'everything')} | {cell(runs, 'out')} | {cell(runs, 'rx_bytes', 1000)} | "
               f"{cell(runs, 'tx_bytes', 1000)} | {cell(runs, 'hub_kb')} |")

@@ -14,9 +14,9 @@
 With ``--region NAME`` (a region of the deployment's ``regions``) it takes only the transitions
 of that region's sensors and of those within a border band two sensing ranges wide
 (``--band``), subscribing to those sensors' transitions only (with the default band; the
-agents count them for it, DESIGN §11), and publishes on ``region/<NAME>/{fusion/reports,tracks}`` (local track ids) with
-``region/<NAME>/progress`` after each tick and a ``region/<NAME>/alive`` token; the ``merge``
-service makes the network's ``tracks`` of the regions'.
+agents count them for it, DESIGN §11), and publishes on ``region/<NAME>/{fusion/reports,tracks}``
+(local track ids) with ``region/<NAME>/progress`` after each tick and a ``region/<NAME>/alive``
+token; the ``merge`` service makes the network's ``tracks`` of the regions'.
 
 The ``tracks`` queryable returns the latest ``TrackSet`` (``tracks?after=T``: the recent ones
 after T, for a recorder that restarted or lost its router).
