@@ -4,7 +4,7 @@ and end of stream."""
 
 from __future__ import annotations
 
-from pydantic import Field, NonNegativeInt
+from pydantic import Field, NonNegativeInt, model_serializer
 
 from bintrack.message_base import FrozenModel, Message, Seconds
 
@@ -147,6 +147,14 @@ class Clock(Message):
         "replay's tick the raw samples of the sensors placed in the region; in a sensor agent's progress report its "
         "transitions of the sensors the region's base station takes (border band included). A receiver that "
         "subscribes to its region's keys only holds a report until it has that many (DESIGN §11)")
+
+    @model_serializer(mode="wrap")
+    def _counts_only_when_given(self, handler):
+        """``sent_to`` is left out when absent, as before it was added (JSON exports unchanged)."""
+        data = handler(self)
+        if self.sent_to is None:
+            data.pop("sent_to", None)
+        return data
 
 
 class EndOfStream(Message):
