@@ -130,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     base = rows[0]
     print()
     print("| regions | event-s per CPU-s, per region: min / median / max | × baseline (min) | all regions on one "
-          "core | per router, msgs per event-s: in / needed / delivered today / results out |")
+          "core | per router, msgs per event-s: in / needed / delivered with ** (before §11) / results out |")
     print("| ---: | ---: | ---: | ---: | ---: |")
     for row in rows:
         print(f"| {row['regions']} | {row['min']:.2f} / {row['median']:.2f} / {row['max']:.2f} | "
@@ -155,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         left.legend(fontsize=8)
         right.plot(counts, [r["in"] for r in rows], "o-", label="published in (own sensors)")
         right.plot(counts, [r["needed"] for r in rows], "s-", label="needed (sensors + band)")
-        right.plot(counts, [r["delivered"] for r in rows], "x:", label="delivered today (whole network)")
+        right.plot(counts, [r["delivered"] for r in rows], "x:", label="delivered with ** (whole network, before §11)")
         right.plot(counts, [r["out"] for r in rows], "^-", label="results out")
         right.set_xscale("log", base=2)
         right.set_yscale("log")

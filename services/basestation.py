@@ -13,9 +13,10 @@
 
 With ``--region NAME`` (a region of the deployment's ``regions``) it takes only the transitions
 of that region's sensors and of those within a border band two sensing ranges wide
-(``--band``), and publishes on ``region/<NAME>/{fusion/reports,tracks}`` (local track ids) with
-``region/<NAME>/progress`` after each tick and a ``region/<NAME>/alive`` token; the ``merge``
-service makes the network's ``tracks`` of the regions'.
+(``--band``), subscribing to those sensors' transitions only (with the default band; the
+agents count them for it, DESIGN §11), and publishes on ``region/<NAME>/{fusion/reports,tracks}``
+(local track ids) with ``region/<NAME>/progress`` after each tick and a ``region/<NAME>/alive``
+token; the ``merge`` service makes the network's ``tracks`` of the regions'.
 
 The ``tracks`` queryable returns the latest ``TrackSet`` (``tracks?after=T``: the recent ones
 after T, for a recorder that restarted or lost its router).
@@ -82,7 +83,11 @@ class Basestation(TransitionConsumer):
         except ValueError as exc:
             raise CommandError(str(exc)) from None
         peers = ("peer_agent",) if self.args.estimates is not None else ()
-        self.start_intake(deployment, tracker, upstream=("sensor_agent", *peers), network=network)
+        # a region's base station hears only the transitions it takes, ordered by the agents' counts of
+        # them, which are made for the default band (DESIGN §11); else the network's, in arrival order
+        narrow = region is not None and self.args.band is None and not peers
+        self.start_intake(deployment, tracker, upstream=("sensor_agent", *peers), network=network,
+                          order_by=region if narrow else None)
         if self.args.estimates is not None:
             self.nodes = set(deployment.by_id())
             self.subscribe(self.keys.estimate(), self.on_peer_report)

@@ -3,7 +3,11 @@
 ``python -m bintrack.services.sensor_agent [--sensors ID,…] [--region NAME]`` hosts any number
 of a deployment's sensors (all by default; those placed in a region with ``--region``), handled
 in arrival order by the one subscriber's handler (the clock tick after a sample is acknowledged
-once the sample is handled). A sensor publishes a ``Transition`` on ``sensor/<id>/transition``
+once the sample is handled). With ``--region`` it subscribes to its own sensors' raw keys, the
+clock and the end of stream only, and holds a tick until the raw samples replay counts for its
+region before it are in (:mod:`~bintrack.live.tick_order`). With a deployment that has
+regions, its progress reports say in ``sent_to`` how many transitions it sent of the sensors
+each region's base station takes. A sensor publishes a ``Transition`` on ``sensor/<id>/transition``
 only when its status changes, and answers its ``sensor/<id>/state`` queryable with its status, last ``seq`` and, for a query
 ``…/state?since=N``, the recent transitions after seq N so a receiver can repair a gap.
 """
@@ -21,8 +25,9 @@ from bintrack.live.recent_catchup import RecentCatchUp
 from bintrack.live.sensor_hosting import HISTORY_SPAN, HostedSensors
 from bintrack.live.service import Service, log, service_main
 from bintrack.live.session_options import add_bus_arguments
+from bintrack.live.tick_order import TickOrder
 from bintrack.bus_payloads import Clock, EndOfStream, RawSample
-from bintrack.message_codec import encode
+from bintrack.message_codec import encode, is_resent
 from bintrack.transition_detector import TransitionDetector
 
 
@@ -34,22 +39,27 @@ class SensorAgent(Service):
         self.hosts: HostedSensors | None = None
         self.intake: RawIntake | None = None  # the raw samples it hands to them
         self.replay: RecentCatchUp | None = None  # what it knows of replay's raw samples
+        self.order: TickOrder | None = None  # a region's agent: its ticks held until their raw samples are in
 
     async def setup(self) -> None:
         deployment = await self.wait_for_deployment()
         if deployment is None:
             return
         sensors = deployment.by_id()
-        if self.args.region is not None:
-            from bintrack.regions import RegionMap  # shapely: loaded only for a region
+        regions = None
+        if self.args.region is not None or deployment.regions:
+            from bintrack.regions import RegionMap  # shapely: loaded only for regions
 
             try:
-                hosted = RegionMap(deployment).own_sensors(self.args.region)
+                regions = RegionMap(deployment)
+                own = regions.own_sensors(self.args.region) if self.args.region is not None else None
             except ValueError as exc:
                 log.error("%s: --region: %s", self.name, exc)
                 self.exit_status = 2
                 self.stop()
                 return
+        if self.args.region is not None:
+            hosted = own
             if self.args.sensors:
                 hosted = [s for s in hosted if s in set(self.args.sensors.split(","))]
         else:
@@ -62,7 +72,14 @@ class SensorAgent(Service):
             return
         self.hosts = HostedSensors(self.keys, self.instance, TransitionDetector(deployment, hosted), hosted,
                                    self.put, self.bad.report, self.args.lose)
+        if deployment.regions:
+            self.hosts.count_for(regions.takers(hosted))
         self.replay = RecentCatchUp(self.name, self.keys.recent(), self.hosts, self.query, self.stopping)
+        if self.args.region is not None and hosted and hosted == own:
+            # its region's keys only: a router forwards it nothing of the other regions (DESIGN §11)
+            self.order = TickOrder(self.args.region)
+            self.replay.caught_up = self.order.caught_up
+            self.narrow([*(self.keys.raw(sid) for sid in hosted), self.keys.clock(), self.keys.eos()])
         checkpoint = self.checkpoints.load(SensorAgentCheckpoint)
         if checkpoint is not None and set(checkpoint.sensors) == set(self.hosts.sensors):
             await self._resume(checkpoint)
@@ -95,20 +112,56 @@ class SensorAgent(Service):
         if raw is None:
             return
         self.replay.raw_arrived(raw.t)
-        self.intake.take(str(sample.key_expr), raw, None if sample.attachment is None else sample.attachment.to_bytes())
+        attachment = None if sample.attachment is None else sample.attachment.to_bytes()
+        if self.order is not None and (attachment is None or not is_resent(attachment)):  # (replay counts it once)
+            if not self.order.arrived(raw.sensor, raw.t):
+                return  # taken from replay's recent samples before it came
+            self.intake.take(str(sample.key_expr), raw, attachment)
+            if self.order.held:
+                self.acknowledge_ready()
+            return
+        self.intake.take(str(sample.key_expr), raw, attachment)
 
     def on_clock(self, sample: zenoh.Sample) -> None:
-        """A clock tick is acknowledged at once: every sample before it has been handled."""
+        """A clock tick is acknowledged once every sample before it has been handled: at once,
+        or for a region's agent once its region's samples replay counts before it are in."""
         message = self.read(Clock, sample)
         if message is None:
             return
+        if self.order is None or message.sent_to is None:
+            self.acknowledge(message)
+            return
+        self.order.tick(message)
+        if self.order.short():
+            self.fill()
+        self.acknowledge_ready()
+
+    def fill(self) -> None:
+        """A tick still lacks raw samples although the next came: take them from replay."""
+        received = self.order.count(self.order.held[0])
+        catch_up = self.replay.fill()
+        if not catch_up.complete:
+            log.warning("%s: raw samples before the tick at t=%g s did not arrive and replay does not answer yet; "
+                        "the tick is held", self.name, self.order.held[0].t)
+            return
+        log.info("%s: %d raw samples before the tick at t=%g s had not arrived by the next tick; %d taken from "
+                 "replay's recent samples", self.name, self.order.need(self.order.held[0]) - received,
+                 self.order.held[0].t, catch_up.taken)
+
+    def acknowledge_ready(self) -> None:
+        for tick in self.order.ready():
+            self.acknowledge(tick)
+
+    def acknowledge(self, message: Clock) -> None:
+        """Acknowledge the clock tick ``message``: every raw sample before it is handled."""
         self.replay.acknowledge(message)
         self.hosts.forget_before(message.t - HISTORY_SPAN)
         self.intake.say_resent()
         self.hosts.trim(message.t)
         if self.checkpoints.path is not None:
             self.checkpoints.save(self.hosts.checkpoint(message.t))
-        self.report_progress(message.t, sent=self.hosts.sent)
+        self.report_progress(message.t, sent=self.hosts.sent,
+                             sent_to=None if self.hosts.sent_to is None else dict(self.hosts.sent_to))
 
     def on_eos(self, sample: zenoh.Sample) -> None:
         message = self.read(EndOfStream, sample)

@@ -4,7 +4,7 @@ and end of stream."""
 
 from __future__ import annotations
 
-from pydantic import Field
+from pydantic import Field, NonNegativeInt, model_serializer
 
 from bintrack.message_base import FrozenModel, Message, Seconds
 
@@ -142,6 +142,19 @@ class Clock(Message):
                              "peer agent's estimates, a base station's or the merge's track sets")
     released: float | None = Field(None, description="in a tracker service's progress report: its watermark, s — "
                                    "every output of an event time before it has been published")
+    sent_to: dict[str, NonNegativeInt] | None = Field(
+        None, description="the part of ``sent`` each region takes, by region name (a deployment with regions): in "
+        "replay's tick the raw samples of the sensors placed in the region; in a sensor agent's progress report its "
+        "transitions of the sensors the region's base station takes (border band included). A receiver that "
+        "subscribes to its region's keys only holds a report until it has that many (DESIGN §11)")
+
+    @model_serializer(mode="wrap")
+    def _counts_only_when_given(self, handler):
+        """``sent_to`` is left out when absent, as before it was added (JSON exports unchanged)."""
+        data = handler(self)
+        if self.sent_to is None:
+            data.pop("sent_to", None)
+        return data
 
 
 class EndOfStream(Message):

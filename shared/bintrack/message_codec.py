@@ -58,6 +58,7 @@ class _ClockView(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     version: Literal[1] = SCHEMA_VERSION
     sent: Annotated[int, msgspec.Meta(ge=0)] | None = None
     released: float | None = None
+    sent_to: dict[str, Annotated[int, msgspec.Meta(ge=0)]] | None = None
 
 
 class _EndOfStreamView(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -98,7 +99,10 @@ _FLAT = frozenset({RawSample, Transition, Clock, EndOfStream, LocalEstimate, Tru
 def encode(message: BaseModel) -> bytes:
     """msgpack bytes of ``message`` with field names as keys (aliases where a field has one)."""
     if type(message) in _FLAT:
-        return msgpack.packb(message.__dict__, use_bin_type=True)
+        fields = message.__dict__
+        if type(message) is Clock and fields["sent_to"] is None:  # a field added later: absent, the bytes as before
+            fields = {name: value for name, value in fields.items() if name != "sent_to"}
+        return msgpack.packb(fields, use_bin_type=True)
     return msgpack.packb(message.model_dump(mode="json", by_alias=True), use_bin_type=True)
 
 

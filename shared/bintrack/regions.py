@@ -98,6 +98,17 @@ class RegionMap:
                 taken.append(s.id)
         return taken
 
+    def takers(self, sensors: list[str]) -> dict[str, tuple[str, ...]]:
+        """For each of ``sensors`` (ids), the regions whose base stations take it with the
+        default band (:meth:`taken_sensors`): whom a sensor agent counts its transitions for."""
+        wanted = set(sensors)
+        takers: dict[str, list[str]] = {sid: [] for sid in sensors}
+        for name in self.names:
+            for sid in self.taken_sensors(name):
+                if sid in wanted:
+                    takers[sid].append(name)
+        return {sid: tuple(names) for sid, names in takers.items()}
+
     def sub_deployment(self, name: str, band: float | None = None) -> Deployment:
         """The deployment a region's base station tracks on: the sensors it takes, in the whole
         field (so that the fusion's grid cells lie where the whole field's do)."""

@@ -121,6 +121,7 @@ class SensorAgentCheckpoint:
     detector: TransitionDetector | None
     sensors: dict[str, float]  # hosted sensor → event time of its last sample, s
     recent: list[tuple] = field(default_factory=list)  # (schema version, *Sent) of the last RESUME_SPAN s
+    sent_to: dict[str, int] | None = None  # with regions: of ``sent``, those of each region's sensors (DESIGN §11)
 
 
 

@@ -43,7 +43,9 @@ class UpstreamDone:
 
 class EndOfStream:
     """Calls ``finish(t)`` once, when the end of stream at ``t`` (s) has come and the upstream
-    is done, then ``report_done(t)``."""
+    is done, then ``report_done(t)``; a ``finish`` that returns False is not done yet (a
+    region's base station still waiting for transitions an agent counted) and calls
+    :meth:`check` again."""
 
     def __init__(self, upstream: Iterable[str], finish: Callable[[float], None],
                  report_done: Callable[[float], None]):
@@ -87,7 +89,10 @@ class EndOfStream:
             self.check()
 
     def check(self) -> None:
+        """Finish if the time has come; ``finish`` returning False holds it (it calls again)."""
         if self.eos is not None and not self.finished and self.upstream.complete:
             self.finished = True
-            self.finish(self.eos)
+            if self.finish(self.eos) is False:
+                self.finished = False
+                return
             self.report_done(self.eos)

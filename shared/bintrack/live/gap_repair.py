@@ -1,6 +1,8 @@
 """How a transition consumer gets every transition once: ``seq`` gaps repaired from the
 sensors' ``state`` queryables, transitions a sensor agent says it sent that never arrived
-fetched the same way, restarted sensor agents followed, and duplicates dropped (DESIGN §3)."""
+fetched the same way, restarted sensor agents followed, and duplicates dropped (DESIGN §3).
+A region's base station, which hears only the transitions it takes, counts them per agent
+instead (:class:`~bintrack.live.count_order.CountOrder`, DESIGN §11)."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from bintrack.keys import Keys
+from bintrack.live.count_order import CountOrder
 from bintrack.live.sequence_checks import SequenceCheck, SourceCheck
 from bintrack.bus_payloads import SensorState, Transition
 from bintrack.message_codec import MessageError, decode
@@ -26,6 +29,7 @@ class IntakeState:
     fetched: set[tuple[str | None, int | None]] = field(default_factory=set)  # fetched from state; may still arrive
     newest: dict[str, float] = field(default_factory=dict)  # event time of the newest transition taken, per sensor
     restarts: set[str | None] = field(default_factory=set)  # sources seen counting from 1 again (logged once)
+    order: CountOrder | None = None  # a region's base station hearing its sensors only: their counts per agent
 
 
 class GapRepair:
@@ -43,6 +47,8 @@ class GapRepair:
         self.query = query
         self.report = report
         self.state = state if state is not None else IntakeState()
+        if not hasattr(self.state, "order"):  # a checkpoint from before regions were counted
+            self.state.order = None
         self.unanswered: set[str] = set()  # agents whose sent transitions wait for their state's answer
         self.forgotten: dict[str, int] = {}  # agent → the count from which it no longer had them (logged)
 
@@ -50,7 +56,8 @@ class GapRepair:
         """A transition that arrived on ``key``: taken, repaired after a gap, or dropped."""
         state = self.state
         if transition.sensor not in self.sensors:
-            state.sources.accept(transition)  # another region's sensor: its agent's count stays whole
+            if state.order is None:
+                state.sources.accept(transition)  # another region's sensor: its agent's count stays whole
             return
         self.follow_restart(transition)
         kind = state.sequence.classify(transition)
@@ -76,6 +83,8 @@ class GapRepair:
         state.sequence.last.pop(transition.sensor, None)
         if state.sources.seen(transition):
             state.sources.forget(transition.source)
+            if state.order is not None:
+                state.order.forget(transition.source)
         if transition.source not in state.restarts:
             state.restarts.add(transition.source)
             log.info("%s: %s counts its transitions from 1 again (a sensor agent restarted); following it",
@@ -116,6 +125,34 @@ class GapRepair:
             log.warning("%s: %s sent transitions from its count %d on that were lost and are no longer in its "
                         "memory", self.who, source, still)
         return True
+
+    def settle(self, source: str, final: bool = False) -> list[float] | None:
+        """A region's base station: the ticks (s) of ``source``'s reports whose transitions are
+        all held, once; a report still short when the next came (or, ``final``, at the end of
+        the stream) is a gap, fetched from the sensors' state first. None while ``source``'s
+        state does not answer (its reports are held until it does)."""
+        order = self.state.order
+        short = order.short(source, final)
+        force = False
+        if short is not None:
+            after = order.sources[source].settled
+            if not self.fetch_missed(f"{self.keys.state()}?source={source};after={after}", upto=short.sent):
+                if source not in self.unanswered:
+                    self.unanswered.add(source)
+                    log.warning("%s: %s sent transitions that did not arrive and its state does not answer yet; "
+                                "its progress is held until they are fetched", self.who, source)
+                return None
+            self.unanswered.discard(source)
+            force = True  # what the agent no longer had is lost: named below
+        ticks = []
+        for t, sent, missing in order.ready(source, force):
+            self.state.sources.settle(source, sent)
+            if missing and self.forgotten.get(source) != sent:
+                self.forgotten[source] = sent
+                log.warning("%s: %d transitions %s sent up to its count %d were lost and are no longer in its "
+                            "memory", self.who, missing, source, sent)
+            ticks.append(t)
+        return ticks
 
     def taken(self, transition: Transition) -> bool:
         """Whether ``transition`` was taken already: by its agent's count where it carries one
@@ -163,6 +200,8 @@ class GapRepair:
                 continue
             if upto is not None and transition.source_seq > upto:
                 continue
+            if self.state.order is not None and transition.sensor not in self.sensors:
+                continue  # a sensor this region does not take (its agent answers for all it hosts)
             if not self.taken(transition):
                 self.take(transition)
                 self.state.fetched.add((transition.source, transition.source_seq))
@@ -171,9 +210,13 @@ class GapRepair:
     def take(self, transition: Transition) -> None:
         """Count ``transition`` as received and hand it on if it is of one of ``sensors``."""
         state = self.state
-        state.sources.accept(transition)
         if transition.sensor not in self.sensors:
-            return  # another region's sensor: received (its agent's count is whole), not tracked
+            if state.order is None:  # another region's sensor: received (its agent's count is whole), not tracked
+                state.sources.accept(transition)
+            return
+        state.sources.accept(transition)
+        if state.order is not None and transition.source is not None and transition.source_seq is not None:
+            state.order.held(transition.source, transition.source_seq)
         state.sequence.accept(transition)
         state.newest[transition.sensor] = max(transition.t, state.newest.get(transition.sensor, -math.inf))
         self._take(transition)

@@ -38,13 +38,15 @@ class ProgressReports:
         self._reported_at = -math.inf
         self._timer: asyncio.TimerHandle | None = None
 
-    def report(self, t: float, sent: int | None = None, released: float | None = None) -> None:
+    def report(self, t: float, sent: int | None = None, released: float | None = None,
+               sent_to: dict[str, int] | None = None) -> None:
         """Report the clock tick ``t`` (s) handled (and, for a sensor agent, the transitions
-        ``sent``; for a tracker service, the watermark ``released``, s). Sent at once if
+        ``sent``, per region that takes them in ``sent_to``; for a tracker service, the
+        watermark ``released``, s). Sent at once if
         ACK_WAIT s passed since the last report or ACK_TICKS reports are pending, else within
         ACK_WAIT s (the newest one): a report per tick at real time, one per few ticks when
         replay runs as fast as it can, and never a tick left unacknowledged."""
-        self._pending = Clock(t=t, sent=sent, released=released)
+        self._pending = Clock(t=t, sent=sent, released=released, sent_to=sent_to)
         self._unreported += 1
         if self._unreported >= ACK_TICKS or time.monotonic() - self._reported_at >= ACK_WAIT:
             self.flush()

@@ -9,7 +9,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from bintrack.bus_payloads import Clock, RawSample
 from bintrack.keys import ParsedKey
@@ -33,6 +33,8 @@ class CatchUp:
     first_held: float = math.inf
     published: int | None = None
     complete: bool = False
+    published_to: dict[str, int] | None = None  # with regions: replay's count per region so far
+    taken_samples: list[tuple[str, float]] = field(default_factory=list)  # (sensor, t) of those taken
 
     def lost(self, published_by_tick: int | None, arrived: int) -> int | None:
         """Raw samples published after the tick whose count was ``published_by_tick`` that
@@ -53,7 +55,8 @@ def take_recent(replies: list[bytes], hosts: HostedSensors, newer: bool) -> Catc
             raw = decode_view(RawSample, payload)
         except MessageError:
             try:
-                out.published, out.complete = decode_view(Clock, payload).sent, True
+                tick = decode_view(Clock, payload)
+                out.published, out.published_to, out.complete = tick.sent, tick.sent_to, True
             except MessageError:
                 pass
             continue
@@ -63,6 +66,7 @@ def take_recent(replies: list[bytes], hosts: HostedSensors, newer: bool) -> Catc
         if hosted is not None and (raw.t > hosted.last_t or (not newer and raw.t == hosted.last_t)):
             hosted.handle(raw)
             out.taken += 1
+            out.taken_samples.append((raw.sensor, raw.t))
     return out
 
 
@@ -84,6 +88,7 @@ class RecentCatchUp:
         self.since_ack = 0  # raw samples (of every sensor) received after it
         self.last_raw_t = float("-inf")  # event time of the last raw sample received, s
         self.replay_gone: float | None = None  # monotonic time replay's token went (out of reach), while it is
+        self.caught_up: Callable[[CatchUp], None] = lambda catch_up: None  # told each answer taken
 
     async def take(self, newer: bool) -> int:
         """Handle the raw samples replay published after the last tick acknowledged (its
@@ -93,6 +98,7 @@ class RecentCatchUp:
             replies = await asyncio.to_thread(self.query, f"{self.recent_key}?after={self.acked!r}", 2.0)
             catch_up = take_recent(replies, self.hosts, newer)
             if catch_up.complete or self.stopping.is_set():
+                self.caught_up(catch_up)
                 return catch_up.taken
             log.info("%s: waiting for replay's recent samples", self.name)
             await asyncio.sleep(RETRY)
@@ -113,6 +119,15 @@ class RecentCatchUp:
         self.since_ack += 1
         self.last_raw_t = t
 
+    def fill(self) -> CatchUp:
+        """Take the hosted sensors' samples replay published after the last tick acknowledged
+        that did not arrive (a narrowed agent's tick still short when the next came); blocking,
+        as :meth:`catch_up`."""
+        catch_up = take_recent(self.query(f"{self.recent_key}?after={self.acked!r}", 2.0), self.hosts, newer=True)
+        if catch_up.complete:
+            self.caught_up(catch_up)
+        return catch_up
+
     def acknowledge(self, tick: Clock) -> None:
         """The clock tick ``tick`` is acknowledged: every sample before it has been handled."""
         if self.replay_gone is not None:
@@ -131,6 +146,7 @@ class RecentCatchUp:
             if catch_up.complete or self.stopping.is_set():
                 break
             time.sleep(0.1)
+        self.caught_up(catch_up)
         lost = catch_up.lost(self.acked_sent, self.since_ack)
         log.warning("%s: replay was out of reach for %.1f s; of the raw samples it published after t=%g s, %d arrived "
                     "and %d were still held (%d of them this agent's, taken)%s", self.name, away, self.acked,

@@ -113,7 +113,8 @@ class ReplayPlayer:
                 break
             if isinstance(action, Tick):
                 again = None
-                self.put(self.keys.clock(), encode(Clock(t=action.t, sent=self.source.raw_published)), control)
+                tick = Clock(t=action.t, sent=self.source.raw_published, sent_to=self.source.counts())
+                self.put(self.keys.clock(), encode(tick), control)
                 self._ticked(action.t)
                 if time.monotonic() - yielded_at >= YIELD_EVERY:
                     await asyncio.sleep(0)  # let signals and progress reports in

@@ -56,6 +56,9 @@ class ReplaySource:
         self._recorded_step: float | None = None  # a recording's largest gap between ticks, s, once checked
         self.span: TimeSpan | None = None  # a dataset's event times, once checked
         self.raw_published = 0  # raw samples published (or walked past by a restart), in each clock tick
+        # with regions: raw key → its sensor's region, and the raw samples published per region (a tick's sent_to)
+        self.region_of: dict[str, str] = {}
+        self.raw_published_to: dict[str, int] | None = None
 
     def check(self) -> None:
         """Read every row of a dataset's events, or every tick of a recording (FormatError for a
@@ -71,6 +74,19 @@ class ReplaySource:
 
     def play_on(self, keys: Keys) -> None:
         self.keys = keys
+        if self.deployment.regions:
+            from bintrack.regions import RegionMap  # shapely: loaded only for a deployment with regions
+
+            try:
+                regions = RegionMap(self.deployment)
+            except ValueError:  # a bad region: the region's services say so, and none can narrow
+                return
+            self.region_of = {keys.raw(sid): name for name in regions.names for sid in regions.own_sensors(name)}
+            self.raw_published_to = dict.fromkeys(regions.names, 0)
+
+    def counts(self) -> dict[str, int] | None:
+        """The raw samples published so far per region (a copy), None without regions."""
+        return None if self.raw_published_to is None else dict(self.raw_published_to)
 
     def largest_step(self, period: float, max_gap: float) -> float:
         """The largest gap between two ticks (s): ``period``, or a recording's own if larger, or
@@ -124,6 +140,10 @@ class ReplaySource:
     def _remember(self, key: str, payload: bytes) -> None:
         """Keep a raw sample put after the last tick, for ``recent`` and for sending it again."""
         self.raw_published += 1
+        if self.raw_published_to is not None:
+            region = self.region_of.get(key)
+            if region is not None:
+                self.raw_published_to[region] += 1
         self.recent.append((-math.inf if self.last_tick is None else self.last_tick, key, payload))
 
     def ticked(self, t: float) -> None:
@@ -148,7 +168,9 @@ class ReplaySource:
         in order, then a ``Clock`` (the last tick published, 0 before the first, and every raw
         sample published so far in ``sent``) that ends the answer, so the asker knows it is
         complete, and can tell from the ``sent`` of the tick at ``after`` how many samples since
-        are no longer held."""
+        are no longer held (with regions, ``sent_to`` per region: what a region's sensor agent
+        holds once it has taken the answer)."""
         answer = [payload for tick, _, payload in self.recent if tick >= after]
-        answer.append(encode(Clock(t=0.0 if self.last_tick is None else self.last_tick, sent=self.raw_published)))
+        answer.append(encode(Clock(t=0.0 if self.last_tick is None else self.last_tick, sent=self.raw_published,
+                                   sent_to=self.counts())))
         return answer

@@ -50,6 +50,7 @@ class HostedSensor:
         self.history: deque[Sent] = deque(maxlen=HISTORY)
         self.last_t = float("-inf")
         self.key = hosts.keys.transition(sensor_id)
+        self.takers: tuple[str, ...] = ()  # the regions that take it (each counts its transitions)
 
     def handle(self, sample: RawSample) -> None:
         hosts = self.hosts
@@ -61,6 +62,8 @@ class HostedSensor:
         if change is None:
             return
         hosts.sent += 1
+        for region in self.takers:
+            hosts.sent_to[region] += 1
         transition = Sent(sample.t, self.id, sample.value, change[0], change[1], hosts.instance, hosts.sent)
         self.remember(transition)
         hosts.recent.append(transition)
@@ -95,9 +98,19 @@ class HostedSensors:
         self.report = report
         self.lose = lose
         self.sent = 0
+        self.sent_to: dict[str, int] | None = None  # with regions: the transitions sent that each region takes
         self.recent: deque[Sent] = deque()  # the transitions sent in the last RESUME_SPAN s
         self.trail: deque[Sent] = deque()  # every sensor's history, oldest first (to trim them)
         self.sensors = {sid: HostedSensor(sid, detector, self) for sid in hosted}
+
+    def count_for(self, takers: dict[str, tuple[str, ...]]) -> None:
+        """Count the transitions sent per region that takes them (``takers``: sensor → regions),
+        for the progress reports' ``sent_to`` (DESIGN §11)."""
+        self.sent_to = {}
+        for sid, hosted in self.sensors.items():
+            hosted.takers = takers.get(sid, ())
+            for region in hosted.takers:
+                self.sent_to.setdefault(region, 0)
 
     def forget_before(self, t: float) -> None:
         """Drop the histories older than event time ``t`` (s): each transition is looked at once."""
@@ -110,7 +123,8 @@ class HostedSensors:
         """What to keep at the clock tick ``tick`` (s) acknowledged."""
         detector = next(iter(self.sensors.values())).detector if self.sensors else None
         return SensorAgentCheckpoint(tick, self.sent, detector, {sid: h.last_t for sid, h in self.sensors.items()},
-                                     [(SCHEMA_VERSION, *tr) for tr in self.recent])
+                                     [(SCHEMA_VERSION, *tr) for tr in self.recent],
+                                     None if self.sent_to is None else dict(self.sent_to))
 
     def trim(self, tick: float) -> None:
         """Forget the sent transitions older than RESUME_SPAN before ``tick`` (s)."""
@@ -120,6 +134,9 @@ class HostedSensors:
     def restore(self, saved: SensorAgentCheckpoint) -> None:
         """Take back the statuses, counters and recent transitions of ``saved``."""
         self.sent = saved.sent
+        saved_to = getattr(saved, "sent_to", None)  # (a checkpoint from before regions counted: none)
+        if self.sent_to is not None and saved_to is not None:
+            self.sent_to.update((region, n) for region, n in saved_to.items() if region in self.sent_to)
         for fields in saved.recent:
             kept = dict(zip(TRANSITION_FIELDS, fields))
             transition = Sent(**{name: kept[name] for name in Sent._fields})

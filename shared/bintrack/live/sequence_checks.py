@@ -57,6 +57,16 @@ class SourceCheck:
         self._contiguous.pop(source, None)
         self._beyond.pop(source, None)
 
+    def settle(self, source: str, upto: int) -> None:
+        """Every transition of ``source`` up to ``upto`` is accounted for (a region's base
+        station, which hears a part of them only, knows by their count)."""
+        n = max(self._contiguous.get(source, 0), upto)
+        beyond = self._beyond.get(source, set())
+        while n + 1 in beyond:
+            n += 1
+        self._contiguous[source] = n
+        self._beyond[source] = {m for m in beyond if m > n}
+
     def contiguous(self) -> dict[str, int]:
         """source → the highest ``source_seq`` up to which every transition of it was received."""
         return dict(self._contiguous)

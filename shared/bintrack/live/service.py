@@ -110,9 +110,18 @@ class Service:
         (see :mod:`bintrack.live.dispatch`)."""
         if self.dispatch.add(key_expr, handler):
             self.follow_presence()
-            self._declared.append(self.session.declare_subscriber(
-                self.dispatch.listen_key, self.inbox.callback(self.dispatch.route),
-                allowed_origin=zenoh.Locality.REMOTE))
+            dispatch = self.dispatch
+            route = self.inbox.callback(dispatch.route if dispatch.sensors_heard is None else dispatch.route_counted)
+            for listen_key in self.dispatch.listen_keys:
+                self._declared.append(self.session.declare_subscriber(listen_key, route,
+                                                                      allowed_origin=zenoh.Locality.REMOTE))
+
+    def narrow(self, listen_keys: list[str]) -> None:
+        """Subscribe to ``listen_keys`` (a subscriber each) rather than to the whole network,
+        before the first :meth:`subscribe`: a router then forwards this service only what they
+        match (a region's part of the network). Samples of one publisher on two of them may
+        arrive in either order (the service orders by counts, DESIGN §11)."""
+        self.dispatch.narrow(listen_keys)
 
     def follow_presence(self, listener: Callable | None = None) -> None:
         """Follow the network's liveliness tokens (one subscriber), telling ``listener`` too."""
@@ -168,9 +177,10 @@ class Service:
 
     # -- flow control ------------------------------------------------------------------------
 
-    def report_progress(self, t: float, sent: int | None = None, released: float | None = None) -> None:
+    def report_progress(self, t: float, sent: int | None = None, released: float | None = None,
+                        sent_to: dict[str, int] | None = None) -> None:
         """See :meth:`ProgressReports.report`."""
-        self.progress.report(t, sent, released)
+        self.progress.report(t, sent, released, sent_to)
 
     def report_done(self, t: float) -> None:
         self.progress.done(t)
@@ -226,6 +236,8 @@ class Service:
                 entity.undeclare()
             self.token.withdraw()
             self.session.close()
+            if self.dispatch.sensors_heard is not None:
+                log.info("%s: %s", self.name, self.dispatch.summary())
             if self.bad.total or self.inbox.dropped:
                 log.warning("%s: %d bad payloads %s, %d dropped when the inbox was full", self.name,
                             self.bad.total, dict(self.bad.counts), self.inbox.dropped)
