@@ -94,8 +94,29 @@ def test_200_corrupted_copies_give_no_traceback_and_no_silent_partial_export(rec
             else:  # not a word: then every row is there
                 assert read_tracks(out) == expected, (n, how, options, err)
                 outcomes["whole"] += 1
-    # each kind of damage was met: refusals, salvaged or torn copies said so, harmless flips
-    assert all(outcomes.values()), outcomes
+    # each kind of damage was met: refusals, and salvaged or torn copies that said so. (A random
+    # flip that harms nothing is rare, about 1 in 80, and where it lands depends on the bytes,
+    # which hold the wall-clock publish times: it is checked once, below, at a place known to be
+    # such, the summary's copy of a schema, which the export does not read: the chunks hold theirs.)
+    assert outcomes["refused"] and outcomes["warned"], outcomes
+    harmless = bytearray(original)
+    harmless[_summary_schema_end(original)] ^= 0x20
+    copy = tmp_path / "harmless.mcap"
+    copy.write_bytes(bytes(harmless))
+    code, err = export(copy, tmp_path / "harmless.csv")
+    assert code == 0 and "warning" not in err, err
+    assert read_tracks(tmp_path / "harmless.csv") == expected
+
+
+def _summary_schema_end(data: bytes) -> int:
+    """The last byte of the first record of the MCAP summary section, a copy of a schema (the
+    footer, before the closing magic, says where the summary starts; a record is an opcode, an
+    8-byte length and its body)."""
+    footer = len(data) - len(MCAP_MAGIC) - (1 + 8 + 20)
+    assert data[footer] == 0x02, "no footer where the file should end"
+    start = int.from_bytes(data[footer + 9:footer + 17], "little")
+    assert data[start] == 0x03, "the summary does not start with a schema"
+    return start + 9 + int.from_bytes(data[start + 1:start + 9], "little") - 1
 
 
 def _exported(path: Path, tmp: Path) -> Path:
