@@ -76,8 +76,8 @@ class RegionMerge:
     emitted_up_to: float = -math.inf
     next_id: int = 0
     tracker: str = "mcmcda"
-    # identities made for a track where the region owning its position was stale: the owner's
-    # own identity for that target takes over once the owner is back and shows it
+    # identities made for a track within reach of a stale region: that region's own identity for
+    # the target takes over once it is back and shows it (live, or in its late scans)
     provisional: set[int] = field(default_factory=set)
     # the merged scans of the last ``RECALL`` seconds while a region was stale: its late scans
     # are read against them
