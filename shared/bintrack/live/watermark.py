@@ -88,9 +88,10 @@ class UpstreamWatermark:
     once its token is back over a healed link, is not late. An instance whose token is still there
     but whose last report has stayed more than ``hold`` s plus the lead behind the clock for
     ``silent_after`` s of wall time is taken for gone as well (logged), until it reports again.
-    The replay holds event time while an awaited service is gone, but up to its lead (``--max-ahead`` clock periods, the ``lead`` given
-    to :meth:`bound`) of ticks it sent before may still be on their way: they arrive on another path
-    than the departure, so they must not use up the hold. Until an instance of each of ``services``
+    The replay holds event time while an awaited service is gone, but up to its lead
+    (``--max-ahead`` clock periods, the ``lead`` given to :meth:`bound`) of ticks it sent before
+    may still be on their way: they arrive on another path than the departure, so they must not
+    use up the hold. Until an instance of each of ``services``
     has been seen it is −inf: their first outputs may arrive after the first ticks, and a liveliness
     token comes on another path than the clock, so the clock alone must not release past them. Once
     every instance seen has gone for good it is +inf (the clock alone bounds).
