@@ -42,11 +42,33 @@ def field(tmp_path_factory) -> Path:
     return folder
 
 
+def merged_scans_of_a_replay(services, source: Path, net: str, endpoint: str, merge) -> list[TrackSet]:
+    """Replay ``source`` at ``--speed 0`` into the 4 regions' stack on ``endpoint`` (the hub) and
+    return the merge's track sets, once it said it is done (``merge``: its process, for the log)."""
+    keys = Keys(net)
+    merged: list[TrackSet] = []
+    done = threading.Event()
+    session = zenoh.open(client_config([endpoint]))
+    subscribers = [
+        session.declare_subscriber(keys.tracks(), lambda s: merged.append(decode(TrackSet, s.payload.to_bytes()))),
+        session.declare_subscriber(keys.done("merge"), lambda s: done.set()),
+    ]
+    try:
+        replay = services("replay", str(source), "--speed", "0", "--net", net, "--wait-for",
+                          "sensor_agent*4,basestation*4,merge", endpoint=endpoint)
+        assert done.wait(HUNG), f"the merge never finished:\n{merge.log[-3000:]}\n{replay.log[-2000:]}"
+        assert replay.wait() == 0
+    finally:
+        for subscriber in subscribers:
+            subscriber.undeclare()
+        session.close()
+    return merged
+
+
 def test_merged_tracks_on_a_chain_of_three_routers(field, services, tmp_path):
     routers = start_chain(tmp_path)
     hub, middle, last = routers
     net = "darpa-grid"
-    keys = Keys(net)
     try:
         site = {region: (middle if i < 2 else last) for i, region in enumerate(REGIONS)}
         stations = {}
@@ -55,22 +77,7 @@ def test_merged_tracks_on_a_chain_of_three_routers(field, services, tmp_path):
             stations[region] = services("basestation", "--tracker", "mcmcda", "--region", region, "--net", net,
                                         endpoint=router.listen)
         merge = services("merge", "--net", net, endpoint=hub.listen)
-        merged: list[TrackSet] = []
-        done = threading.Event()
-        session = zenoh.open(client_config([hub.listen]))
-        subscribers = [
-            session.declare_subscriber(keys.tracks(), lambda s: merged.append(decode(TrackSet, s.payload.to_bytes()))),
-            session.declare_subscriber(keys.done("merge"), lambda s: done.set()),
-        ]
-        try:
-            replay = services("replay", str(field / "field"), "--speed", "0", "--net", net, "--wait-for",
-                              "sensor_agent*4,basestation*4,merge", endpoint=hub.listen)
-            assert done.wait(HUNG), f"the merge never finished:\n{merge.log[-3000:]}\n{replay.log[-2000:]}"
-            assert replay.wait() == 0
-        finally:
-            for subscriber in subscribers:
-                subscriber.undeclare()
-            session.close()
+        merged = merged_scans_of_a_replay(services, field / "field", net, hub.listen, merge)
         live = [TrackRow(m.t, tr.track, tr.x, tr.y, tr.vx, tr.vy) for m in merged for tr in m.tracks]
         offline = read_tracks(field / "regions.csv")
         # the same objects live and offline: the same rows

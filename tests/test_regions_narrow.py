@@ -8,22 +8,16 @@ Each service says at its stop which sensors it heard samples of, by kind of key.
 from __future__ import annotations
 
 import re
-import threading
 from pathlib import Path
 
 import pytest
-import zenoh
 
 from bintrack.formats import TrackRow, open_dataset, read_tracks
-from bintrack.keys import Keys
-from bintrack.live.session_options import client_config
-from bintrack.message_codec import decode
-from bintrack.bus_payloads import TrackSet
 from bintrack.regions import RegionMap
 
-from support import HUNG
 from test_fault_routers import region_field
 from test_mesh import start_chain
+from test_regions_live import merged_scans_of_a_replay
 
 pytestmark = pytest.mark.slow
 
@@ -49,23 +43,7 @@ def test_a_region_hears_its_own_raw_samples_and_its_bands_transitions_only(servi
         stations[region] = services("basestation", "--tracker", "mcmcda", "--region", region, "--net", net,
                                     endpoint=router.listen)
     merge = services("merge", "--net", net, endpoint=hub.listen)
-    merged: list[TrackSet] = []
-    done = threading.Event()
-    keys = Keys(net)
-    session = zenoh.open(client_config([hub.listen]))
-    subscribers = [
-        session.declare_subscriber(keys.tracks(), lambda s: merged.append(decode(TrackSet, s.payload.to_bytes()))),
-        session.declare_subscriber(keys.done("merge"), lambda s: done.set()),
-    ]
-    try:
-        replay = services("replay", str(field), "--speed", "0", "--net", net, "--wait-for",
-                          "sensor_agent*4,basestation*4,merge", endpoint=hub.listen)
-        assert done.wait(HUNG), f"the merge never finished:\n{merge.log[-3000:]}\n{replay.log[-2000:]}"
-        assert replay.wait() == 0
-    finally:
-        for subscriber in subscribers:
-            subscriber.undeclare()
-        session.close()
+    merged = merged_scans_of_a_replay(services, field, net, hub.listen, merge)
     live = [TrackRow(m.t, tr.track, tr.x, tr.y, tr.vx, tr.vy) for m in merged for tr in m.tracks]
     assert [(r.t, r.track) for r in live] == [(r.t, r.track) for r in offline]
     assert max(abs(a.x - b.x) + abs(a.y - b.y) for a, b in zip(live, offline)) < 1e-6
