@@ -1,5 +1,6 @@
-"""Checkpoints are private pickles: written 0600 and atomically, and refused with one line when
-someone else could have written them (unpickling runs code) or when they are damaged."""
+"""Checkpoints are private pickles: written 0600 and atomically (a new file renamed, or into the
+older of two slots of the file kept open), and refused with one line when someone else could
+have written them (unpickling runs code) or when they are damaged."""
 
 from __future__ import annotations
 
@@ -8,7 +9,10 @@ import stat
 
 import pytest
 
-from bintrack.live.checkpoint import CheckpointRefused, load_checkpoint, save_checkpoint
+import pickle
+
+from bintrack.live.checkpoint import Checkpointer, CheckpointRefused, load_checkpoint, save_checkpoint
+from bintrack.live.checkpoint_slots import HEADER, RECORD
 
 
 def test_a_checkpoint_round_trips_and_is_private(tmp_path):
@@ -40,3 +44,40 @@ def test_a_damaged_checkpoint_is_refused_with_its_reason(tmp_path):
         handle.truncate(20)
     with pytest.raises(CheckpointRefused, match="unreadable"):
         load_checkpoint(path)
+
+
+def test_each_save_goes_into_the_older_slot_so_a_write_cut_short_leaves_the_one_before(tmp_path):
+    os.chmod(tmp_path, 0o700)
+    saver = Checkpointer(str(tmp_path), "replay", "up1")
+    for tick in range(1, 6):
+        saver.save({"tick": tick})
+    assert saver.load(dict) == {"tick": 5}
+    # a kill cuts the sixth save short: its slot (the fifth's neighbour, holding the fourth) is spoilt
+    saver.save({"tick": 6})
+    start = HEADER.size + (6 % 2) * saver.slots.capacity + RECORD.size
+    with open(saver.path, "r+b") as handle:
+        handle.seek(start + 3)
+        handle.write(b"\xff\xff")
+    assert load_checkpoint(saver.path) == {"run": None, "state": {"tick": 5}}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["replay-up1.pickle"]
+
+
+def test_a_checkpoint_that_outgrows_its_slot_is_written_anew_and_read_back(tmp_path):
+    os.chmod(tmp_path, 0o700)
+    saver = Checkpointer(str(tmp_path), "basestation", "up1")
+    saver.save([0])
+    small = saver.slots.capacity
+    saver.save(list(range(10_000)))
+    assert saver.slots.capacity > small
+    assert saver.load(list) == list(range(10_000))
+    assert stat.S_IMODE(os.stat(saver.path).st_mode) == 0o600
+    saver.save([1, 2])
+    assert saver.load(list) == [1, 2]
+
+
+def test_a_plain_pickle_of_an_earlier_version_is_read(tmp_path):
+    os.chmod(tmp_path, 0o700)
+    path = tmp_path / "sensor_agent-up1.pickle"
+    path.write_bytes(pickle.dumps({"run": "r", "state": {"tick": 2.5}}))
+    os.chmod(path, 0o600)
+    assert load_checkpoint(str(path)) == {"run": "r", "state": {"tick": 2.5}}
