@@ -81,3 +81,35 @@ def test_a_plain_pickle_of_an_earlier_version_is_read(tmp_path):
     path.write_bytes(pickle.dumps({"run": "r", "state": {"tick": 2.5}}))
     os.chmod(path, 0o600)
     assert load_checkpoint(str(path)) == {"run": "r", "state": {"tick": 2.5}}
+
+
+def test_a_sensor_agents_checkpoint_keeps_its_transitions_as_sent_and_reads_the_earlier_layout():
+    from bintrack.bus_payloads import RawSample
+    from bintrack.formats import open_dataset
+    from bintrack.keys import Keys
+    from bintrack.live.sensor_hosting import HostedSensors
+    from bintrack.message_base import SCHEMA_VERSION
+    from bintrack.transition_detector import TransitionDetector
+
+    deployment = open_dataset("datasets/darpa-grid-1").deployment
+    ids = [s.id for s in deployment.sensors][:3]
+
+    def agent() -> tuple[HostedSensors, list[bytes]]:
+        sent: list[bytes] = []
+        return HostedSensors(Keys("n"), "agent-1", TransitionDetector(deployment, ids), ids,
+                             lambda key, payload: sent.append(payload), lambda key, reason: None), sent
+
+    first, sent = agent()
+    for k, sid in enumerate(ids * 2):
+        first.sensors[sid].handle(RawSample(t=0.5 * k, sensor=sid, value=1 - k // 3))
+    saved = first.checkpoint(3.0)
+    assert saved.recent == sent and len(sent) == 6  # as they went on the bus
+
+    earlier = pickle.loads(pickle.dumps(saved))
+    earlier.recent = [(SCHEMA_VERSION, *tr) for tr in first.recent]  # tuples, as earlier versions kept them
+    for checkpoint in (saved, earlier):
+        resumed, _ = agent()
+        resumed.restore(checkpoint)
+        assert list(resumed.recent) == list(first.recent)
+        assert list(resumed.recent_payloads) == sent
+        assert [tr.seq for tr in resumed.sensors[ids[0]].history] == [tr.seq for tr in first.sensors[ids[0]].history]

@@ -125,7 +125,9 @@ class SensorAgentCheckpoint:
     sent: int  # transitions sent so far
     detector: TransitionDetector | None
     sensors: dict[str, float]  # hosted sensor → event time of its last sample, s
-    recent: list[tuple] = field(default_factory=list)  # (schema version, *Sent) of the last RESUME_SPAN s
+    # the transitions sent in the last RESUME_SPAN s, encoded as sent (an earlier version's:
+    # (schema version, *Sent) tuples)
+    recent: list[bytes | tuple] = field(default_factory=list)
     sent_to: dict[str, int] | None = None  # with regions: of ``sent``, those of each region's sensors (DESIGN §11)
 
 
