@@ -89,12 +89,13 @@ def memory_folder() -> str | None:
 
 
 def save_checkpoint(path: str, state) -> None:
-    """Write ``state`` to a new file at ``path`` atomically (aside, then renamed), mode 0600."""
-    slots = SlotFile(path)
-    try:
-        slots.write(pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
-    finally:
-        slots.close()
+    """Write ``state`` to a new file at ``path`` atomically (aside, then renamed), mode 0600,
+    pickled straight into it (a tracker's state is megabytes: no copy in memory)."""
+    aside = path + ".tmp"
+    fd = os.open(aside, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "wb") as handle:
+        pickle.dump(state, handle, protocol=pickle.HIGHEST_PROTOCOL)
+    os.replace(aside, path)
 
 
 @dataclass
@@ -216,7 +217,8 @@ class Checkpointer:
 
     def save(self, state: Any) -> None:
         """Save ``state`` with the run it belongs to, atomically and private to this user, if
-        there is a state dir."""
+        there is a state dir: a small state saved often (at every tick), into a slot of the file
+        kept open (:mod:`bintrack.live.checkpoint_slots`)."""
         if self.slots is not None:
             self.slots.write(pickle.dumps({"run": self.run_id, "state": state}, protocol=pickle.HIGHEST_PROTOCOL))
 
@@ -224,9 +226,10 @@ class Checkpointer:
         """Save ``state()`` at event time ``t`` (s) if CHECKPOINT_INTERVAL s of wall clock or
         CHECKPOINT_SPAN s of event time passed since the last one: for a state that takes long to
         save (a tracker's), whose outputs a restarted instance sends again and the receivers
-        drop as duplicates."""
+        drop as duplicates. It is pickled straight into a new file (:func:`save_checkpoint`)."""
         now = time.monotonic()
         if self.path is not None and (now - self._saved_at >= CHECKPOINT_INTERVAL
                                       or t - self._saved_t >= CHECKPOINT_SPAN):
-            self.save(state())
+            self.slots.close()  # the file is replaced: the next save makes a slot file afresh
+            save_checkpoint(self.path, {"run": self.run_id, "state": state()})
             self._saved_at, self._saved_t = now, t
