@@ -126,8 +126,10 @@ class Basestation(TransitionConsumer):
         if self.args.region is not None and math.isfinite(self.released):
             # the merge's watermark: advance(w) emitted the scans strictly before the watermark
             # w released to (the tick less the lateness, held back by upstream progress)
+            # and says how many scans it published up to there: the merge holds the report until
+            # it has them all (a put just after the router came back can be dropped)
             final = math.nextafter(self.released, -math.inf)
-            self.publish(self.keys.region_progress(self.args.region), Clock(t=final))
+            self.publish(self.keys.region_progress(self.args.region), Clock(t=final, sent=self.sent))
         super().report_progress(t, sent, released)
 
     def log_tracker_warnings(self) -> None:
@@ -138,14 +140,17 @@ class Basestation(TransitionConsumer):
         self.warned = len(warnings)
 
     def checkpoint_extra(self):
-        # the track sets served too: a recorder restarted with this service fetches them
-        return self.tracks.latest, list(self.tracks.recent)
+        # the track sets served too (a recorder restarted with this service fetches them), and
+        # how many were published (the merge counts a region's scans by it)
+        return self.tracks.latest, list(self.tracks.recent), self.sent
 
     def restore_extra(self, extra) -> None:
-        if isinstance(extra, tuple):
-            self.tracks.restore(*extra)
-        else:  # a checkpoint of an earlier version: the latest only
+        if not isinstance(extra, tuple):  # a checkpoint of an earlier version: the latest only
             self.tracks.latest = extra
+            return
+        self.tracks.restore(*extra[:2])
+        if len(extra) > 2:
+            self.sent = extra[2]
 
 
 def build_parser() -> argparse.ArgumentParser:

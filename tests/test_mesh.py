@@ -69,14 +69,19 @@ def start_chain(tmp_path: Path, count: int = 3) -> list[RouterProcess]:
     return routers
 
 
-@pytest.fixture
-def chain(tmp_path):
-    routers = start_chain(tmp_path)
-    yield routers
+def stop_chain(routers: list[RouterProcess]) -> None:
+    """Kill the routers of :func:`start_chain` still running."""
     for router in routers:
         if router.proc.poll() is None:
             router.proc.kill()
             router.proc.wait()
+
+
+@pytest.fixture
+def chain(tmp_path):
+    routers = start_chain(tmp_path)
+    yield routers
+    stop_chain(routers)
 
 
 def test_a_sample_crosses_a_chain_of_three_routers(chain):

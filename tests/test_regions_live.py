@@ -25,7 +25,7 @@ from bintrack.live.session_options import client_config
 from bintrack.bus_payloads import Clock, TrackSet
 from bintrack.message_codec import decode
 from support import HUNG, bintrack, free_port, wait_logged
-from test_mesh import start_chain
+from test_mesh import start_chain, stop_chain
 
 pytestmark = pytest.mark.slow
 
@@ -107,10 +107,7 @@ def test_merged_tracks_on_a_chain_of_three_routers(field, services, tmp_path):
             wait_logged(merge, f"region {region}'s base station is gone")
         assert merge.log.count("base station is gone") == 4, merge.log[-3000:]  # each region once
     finally:
-        for router in routers:
-            if router.proc.poll() is None:
-                router.proc.kill()
-                router.proc.wait()
+        stop_chain(routers)
 
 
 def test_up_with_regions_runs_a_router_and_a_base_station_per_region_and_merges(field, tmp_path):

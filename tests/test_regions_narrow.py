@@ -16,7 +16,7 @@ from bintrack.formats import TrackRow, open_dataset, read_tracks
 from bintrack.regions import RegionMap
 
 from test_fault_routers import region_field
-from test_mesh import start_chain
+from test_mesh import start_chain, stop_chain
 from test_regions_live import merged_scans_of_a_replay
 
 pytestmark = pytest.mark.slow
@@ -34,23 +34,27 @@ def heard(log: str) -> dict[str, set[str]]:
 def test_a_region_hears_its_own_raw_samples_and_its_bands_transitions_only(services, tmp_path):
     field, offline = region_field(tmp_path, "2x2", SEED)
     regions = RegionMap(open_dataset(field).deployment)
-    hub, *sites = start_chain(tmp_path)
-    net = "darpa-grid"
-    agents, stations = {}, {}
-    for i, region in enumerate(REGIONS):
-        router = sites[i // 2]
-        agents[region] = services("sensor_agent", "--region", region, "--net", net, endpoint=router.listen)
-        stations[region] = services("basestation", "--tracker", "mcmcda", "--region", region, "--net", net,
-                                    endpoint=router.listen)
-    merge = services("merge", "--net", net, endpoint=hub.listen)
-    merged = merged_scans_of_a_replay(services, field, net, hub.listen, merge)
-    live = [TrackRow(m.t, tr.track, tr.x, tr.y, tr.vx, tr.vy) for m in merged for tr in m.tracks]
-    assert [(r.t, r.track) for r in live] == [(r.t, r.track) for r in offline]
-    assert max(abs(a.x - b.x) + abs(a.y - b.y) for a, b in zip(live, offline)) < 1e-6
+    routers = start_chain(tmp_path)
+    hub, *sites = routers
+    try:
+        net = "darpa-grid"
+        agents, stations = {}, {}
+        for i, region in enumerate(REGIONS):
+            router = sites[i // 2]
+            agents[region] = services("sensor_agent", "--region", region, "--net", net, endpoint=router.listen)
+            stations[region] = services("basestation", "--tracker", "mcmcda", "--region", region, "--net", net,
+                                        endpoint=router.listen)
+        merge = services("merge", "--net", net, endpoint=hub.listen)
+        merged = merged_scans_of_a_replay(services, field, net, hub.listen, merge)
+        live = [TrackRow(m.t, tr.track, tr.x, tr.y, tr.vx, tr.vy) for m in merged for tr in m.tracks]
+        assert [(r.t, r.track) for r in live] == [(r.t, r.track) for r in offline]
+        assert max(abs(a.x - b.x) + abs(a.y - b.y) for a, b in zip(live, offline)) < 1e-6
+        for region in REGIONS:
+            assert agents[region].stop() == 0 and stations[region].stop() == 0
+    finally:
+        stop_chain(routers)
 
     every = {s.id for s in regions.deployment.sensors}
-    for region in REGIONS:
-        assert agents[region].stop() == 0 and stations[region].stop() == 0
     for region in REGIONS:
         own, taken = set(regions.own_sensors(region)), set(regions.taken_sensors(region))
         assert own < taken < every  # the band takes some of the others' sensors, not all

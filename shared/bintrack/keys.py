@@ -142,7 +142,8 @@ class Keys:
 
     def region_progress(self, region: str = "*") -> str:
         """A region's base station: a ``Clock`` after each tick, the event time up to which its
-        tracks are final (every scan at or before it was published)."""
+        tracks are final (every scan at or before it was published), and in ``sent`` how many
+        scans it has published (the merge counts them, DESIGN §11)."""
         return self.build("region_progress", region=region)
 
     def region_alive(self, region: str = "*") -> str:

@@ -32,6 +32,7 @@ from bintrack.live.moved_classes import CheckpointUnpickler
 if TYPE_CHECKING:
     from bintrack.live.gap_repair import IntakeState
     from bintrack.bus_payloads import TrackSet
+    from bintrack.live.region_scan_counts import RegionScanCounts
     from bintrack.pipeline import TrackerDriver
     from bintrack.trackers.multi.region_merge import RegionMerge
     from bintrack.transition_detector import TransitionDetector
@@ -140,6 +141,7 @@ class MergeCheckpoint:
     merge: RegionMerge
     latest: TrackSet | None
     history: list[TrackSet]
+    counts: RegionScanCounts | None = None  # None in a checkpoint from before the scans were counted
 
 
 
