@@ -12,8 +12,7 @@ from bintrack.formats import Event
 from bintrack.keys import Keys
 from bintrack.live.checkpoint import CHECKPOINT_SPAN, SensorAgentCheckpoint
 from bintrack.bus_payloads import RawSample, SensorState, Transition
-from bintrack.message_base import SCHEMA_VERSION
-from bintrack.message_codec import encode_transition
+from bintrack.message_codec import decode, encode_transition
 from bintrack.transition_detector import TransitionDetector
 
 HISTORY = 256  # transitions kept per sensor for gap repair …
@@ -21,7 +20,7 @@ HISTORY_SPAN = 60.0  # … and no older than this, s of event time behind the cl
 # s of event time of sent transitions a checkpoint keeps: those a kill may catch in flight, and
 # all a consumer restarted with this agent may need (its checkpoint is up to CHECKPOINT_SPAN older)
 RESUME_SPAN = CHECKPOINT_SPAN + 2.0
-TRANSITION_FIELDS = tuple(Transition.model_fields)  # a checkpoint's layout of a sent transition: version, then Sent's
+TRANSITION_FIELDS = tuple(Transition.model_fields)  # an earlier checkpoint's layout of a sent transition: version, then Sent's
 
 
 class Sent(NamedTuple):
@@ -65,11 +64,13 @@ class HostedSensor:
         for region in self.takers:
             hosts.sent_to[region] += 1
         transition = Sent(sample.t, self.id, sample.value, change[0], change[1], hosts.instance, hosts.sent)
+        payload = encode_transition(*transition)
         self.remember(transition)
         hosts.recent.append(transition)
+        hosts.recent_payloads.append(payload)
         if hosts.lose and hosts.sent % hosts.lose == 0:
             return  # --lose: a lossy link for tests; the receivers must repair the gap
-        hosts.put(self.key, encode_transition(*transition))
+        hosts.put(self.key, payload)
 
     def remember(self, transition: Sent) -> None:
         """Keep ``transition`` for gap repair (the trail says when to forget it)."""
@@ -100,6 +101,7 @@ class HostedSensors:
         self.sent = 0
         self.sent_to: dict[str, int] | None = None  # with regions: the transitions sent that each region takes
         self.recent: deque[Sent] = deque()  # the transitions sent in the last RESUME_SPAN s
+        self.recent_payloads: deque[bytes] = deque()  # … as sent (encoded): what a checkpoint keeps
         self.trail: deque[Sent] = deque()  # every sensor's history, oldest first (to trim them)
         self.sensors = {sid: HostedSensor(sid, detector, self) for sid in hosted}
 
@@ -123,13 +125,14 @@ class HostedSensors:
         """What to keep at the clock tick ``tick`` (s) acknowledged."""
         detector = next(iter(self.sensors.values())).detector if self.sensors else None
         return SensorAgentCheckpoint(tick, self.sent, detector, {sid: h.last_t for sid, h in self.sensors.items()},
-                                     [(SCHEMA_VERSION, *tr) for tr in self.recent],
+                                     list(self.recent_payloads),
                                      None if self.sent_to is None else dict(self.sent_to))
 
     def trim(self, tick: float) -> None:
         """Forget the sent transitions older than RESUME_SPAN before ``tick`` (s)."""
         while self.recent and self.recent[0].t < tick - RESUME_SPAN:
             self.recent.popleft()
+            self.recent_payloads.popleft()
 
     def restore(self, saved: SensorAgentCheckpoint) -> None:
         """Take back the statuses, counters and recent transitions of ``saved``."""
@@ -137,10 +140,15 @@ class HostedSensors:
         saved_to = getattr(saved, "sent_to", None)  # (a checkpoint from before regions counted: none)
         if self.sent_to is not None and saved_to is not None:
             self.sent_to.update((region, n) for region, n in saved_to.items() if region in self.sent_to)
-        for fields in saved.recent:
-            kept = dict(zip(TRANSITION_FIELDS, fields))
-            transition = Sent(**{name: kept[name] for name in Sent._fields})
+        for kept in saved.recent:
+            if isinstance(kept, bytes):
+                message = decode(Transition, kept)
+                transition = Sent(**{name: getattr(message, name) for name in Sent._fields})
+            else:  # a checkpoint of an earlier version: (schema version, *Sent)
+                fields = dict(zip(TRANSITION_FIELDS, kept))
+                transition = Sent(**{name: fields[name] for name in Sent._fields})
             self.recent.append(transition)
+            self.recent_payloads.append(encode_transition(*transition))
             self.sensors[transition.sensor].remember(transition)
         for sid, last_t in saved.sensors.items():
             hosted = self.sensors[sid]
