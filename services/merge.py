@@ -22,7 +22,6 @@ import argparse
 import asyncio
 import math
 import sys
-import time
 
 import zenoh
 
@@ -32,14 +31,11 @@ from bintrack.live.checkpoint import MergeCheckpoint
 from bintrack.live.service import Service, log, service_main
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.live.region_departures import RegionDepartures
-from bintrack.live.region_scan_counts import RegionScanCounts
+from bintrack.live.region_scan_counts import RegionScanCounts, ReportCheck
 from bintrack.live.track_history import TrackHistory, fetch_region_tracks
 from bintrack.bus_payloads import Clock, TrackSet
 from bintrack.regions import RegionMap
 from bintrack.trackers.multi.region_merge import MergeConfig, RegionMerge
-
-
-SHORT_FOR = 2.0  # s of wall time a region's reports may count scans not heard before those are named lost
 
 
 class Merge(Service):
@@ -52,9 +48,7 @@ class Merge(Service):
         self.tracks = TrackHistory(self.keys.tracks())
         self.departures = RegionDepartures(self.name)
         self.sent = 0  # track sets published, in each progress report
-        self.counts = RegionScanCounts()
-        self.short: dict[str, float] = {}  # region → wall time (s) since its reports count scans not heard
-        self.reported: dict[str, Clock] = {}  # region → its last progress report
+        self.check = ReportCheck(self.name, RegionScanCounts(), self.fetch_from)  # its count of the regions' scans
 
     async def setup(self) -> None:
         deployment = await self.wait_for_deployment()
@@ -67,11 +61,8 @@ class Merge(Service):
         self.subscribe(self.keys.region_tracks(), self.on_region_tracks)
         if resumed:
             # the scans published while it was gone, before any progress report can release them
-            fetched = await asyncio.to_thread(self.fetch_region_tracks, self.merge.emitted_up_to)
-            for region, tracks in fetched:
-                self.add(region, tracks)
             log.info("%s: resumed after t=%g s; %d region scans published since fetched from the base stations",
-                     self.name, self.merge.emitted_up_to, len(fetched))
+                     self.name, self.merge.emitted_up_to, await self.fetch_all())
         self.subscribe(self.keys.region_progress(), self.on_region_progress)
         self.subscribe(self.keys.clock(), self.on_clock)
         self.follow_presence(self.on_presence)
@@ -88,7 +79,7 @@ class Merge(Service):
                         self.name)
             return False
         self.merge = saved.merge
-        self.counts = saved.counts or self.counts
+        self.check.counts = saved.counts or self.check.counts
         self.tracks.restore(saved.latest, saved.history)
         return True
 
@@ -97,13 +88,17 @@ class Merge(Service):
         all) still hold (:func:`~bintrack.live.track_history.fetch_region_tracks`); blocking."""
         return fetch_region_tracks(self.query, self.keys, regions or self.regions.names, after, self.bad.report)
 
+    async def fetch_all(self) -> int:
+        """Fetch every region's scans after the last merged one (off the loop); how many came."""
+        fetched = await asyncio.to_thread(self.fetch_region_tracks, self.merge.emitted_up_to)
+        for region, tracks in fetched:
+            self.add(region, tracks)
+        return len(fetched)
+
     async def on_router_back(self) -> None:
         if self.merge is not None:
-            fetched = await asyncio.to_thread(self.fetch_region_tracks, self.merge.emitted_up_to)
-            for region, tracks in fetched:
-                self.add(region, tracks)
             log.info("%s: %d region scans published during the outage fetched from the base stations", self.name,
-                     len(fetched))
+                     await self.fetch_all())
 
     def region_of(self, sample: zenoh.Sample) -> str | None:
         key = str(sample.key_expr)
@@ -126,12 +121,11 @@ class Merge(Service):
 
     def add(self, region: str, tracks: TrackSet) -> None:
         """A scan of ``region`` heard (live or fetched): counted, and held until its time is released."""
-        self.counts.heard(region, tracks.t)
+        self.check.counts.heard(region, tracks.t)
         self.emit(self.merge.add(region, tracks))
 
     def finish(self, t: float) -> None:
-        for region, report in self.reported.items():
-            self.complete(region, report, wait=False)
+        self.check.finish()
         self.departures.finish()
         self.emit(self.merge.finish())
 
@@ -141,32 +135,8 @@ class Merge(Service):
         if tick is not None:
             if self.departures.reports(region):
                 self.fetch_missed(region)
-            self.reported[region] = tick
-            if tick.sent is None or self.complete(region, tick):
+            if tick.sent is None or self.check.complete(region, tick.t, tick.sent):
                 self.emit(self.merge.progress(region, tick.t))
-
-    def complete(self, region: str, report: Clock, wait: bool = True) -> bool:
-        """Whether every scan ``region``'s progress ``report`` counts has been heard (DESIGN §11).
-        Those missing are fetched from its base station first. Still missing, the report is set
-        aside, and the next one asks again, for up to SHORT_FOR s of wall time (or not at all
-        without ``wait``); then they are named in the log as lost and the report is taken."""
-        if not self.counts.missing(region, report.t, report.sent):
-            self.short.pop(region, None)
-            return True
-        self.fetch_from(region)
-        missing = self.counts.missing(region, report.t, report.sent)
-        if not missing:
-            log.info("%s: region %s's scans up to t=%g s had not all arrived; fetched from its base station",
-                     self.name, region, report.t)
-            self.short.pop(region, None)
-            return True
-        if wait and time.monotonic() - self.short.setdefault(region, time.monotonic()) < SHORT_FOR:
-            return False
-        log.warning("%s: %d scans region %s's base station published up to t=%g s never arrived and it no longer "
-                    "gives them; merged without them", self.name, missing, region, report.t)
-        self.counts.older[region] = self.counts.older.get(region, 0) + missing
-        self.short.pop(region, None)
-        return True
 
     def fetch_from(self, region: str) -> int:
         """Fetch the scans of ``region`` after the last merged scan from its base station (a
@@ -213,10 +183,9 @@ class Merge(Service):
             self.went(region)
         for region in self.departures.tick(tick.t, lead):
             self.emit(self.merge.lost(region))
-        for region in list(self.short):  # a report set aside: asked again though no later one came
-            if region in self.merge.live and self.complete(region, self.reported[region]):
-                self.emit(self.merge.progress(region, self.reported[region].t))
-        self.counts.forget_before(self.merge.emitted_up_to)
+        for region, t in self.check.retry(self.merge.live):
+            self.emit(self.merge.progress(region, t))
+        self.check.counts.forget_before(self.merge.emitted_up_to)
         self.report_progress(tick.t, sent=self.sent)
 
     def emit(self, merged: list[TrackSet]) -> None:
@@ -226,7 +195,7 @@ class Merge(Service):
             self.sent += 1
         if merged:
             self.checkpoints.save_throttled(merged[-1].t, lambda: MergeCheckpoint(
-                self.merge, self.tracks.latest, list(self.tracks.recent), self.counts))
+                self.merge, self.tracks.latest, list(self.tracks.recent), self.check.counts))
 
 
 def build_parser() -> argparse.ArgumentParser:

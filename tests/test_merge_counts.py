@@ -17,7 +17,7 @@ from bintrack.formats import read_deployment
 from bintrack.keys import Keys
 from bintrack.live.session_options import client_config
 from bintrack.message_codec import decode, encode
-from bintrack.live.region_scan_counts import KEEP, RegionScanCounts
+from bintrack.live.region_scan_counts import KEEP, SHORT_FOR, RegionScanCounts, ReportCheck
 from bintrack.regions import RegionMap
 from support import HUNG, bintrack, wait_logged
 
@@ -153,3 +153,23 @@ def test_the_count_takes_a_second_copy_once_and_keeps_counting_what_it_forgot():
     assert counts.times["r0c1"] == {2.0} and counts.older["r0c1"] == 2
     assert counts.missing("r0c1", KEEP + 1.5, 4) == 1
     assert counts.missing("r0c0", 1.0, 2) == 2
+
+
+def test_a_report_short_of_scans_is_set_aside_for_a_while_then_taken_with_the_loss_named(caplog):
+    clock = [0.0]
+    counts = RegionScanCounts()
+    fetched: list[str] = []
+    check = ReportCheck("merge", counts, fetched.append, now=lambda: clock[0])
+    counts.heard("r0c0", 0.5)
+    assert check.complete("r0c0", 0.5, 1)
+    assert not check.complete("r0c0", 1.0, 2) and fetched == ["r0c0"]  # fetched, still short: set aside
+    clock[0] = SHORT_FOR / 2
+    assert check.retry({"r0c0"}) == [] and fetched == ["r0c0"] * 2
+    counts.heard("r0c0", 1.0)  # it came after all
+    assert check.retry({"r0c0"}) == [("r0c0", 1.0)]
+    assert not check.complete("r0c0", 1.5, 3)
+    clock[0] += SHORT_FOR
+    with caplog.at_level("WARNING", logger="bintrack"):
+        assert check.retry({"r0c0"}) == [("r0c0", 1.5)]
+    assert "1 scans region r0c0's base station published up to t=1.5 s never arrived" in caplog.text
+    assert check.complete("r0c0", 1.5, 3)  # named once, then counted as heard

@@ -10,9 +10,15 @@ report and publish those scan times without the region, silently.
 
 from __future__ import annotations
 
+import logging
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 KEEP = 60.0  # s of event time: scan times kept one by one (a scan sent again after a restart is counted once)
+SHORT_FOR = 2.0  # s of wall time a region's reports may count scans not heard before those are named lost
+
+log = logging.getLogger("bintrack")
 
 
 @dataclass
@@ -41,3 +47,52 @@ class RegionScanCounts:
             if old:
                 times -= old
                 self.older[region] = self.older.get(region, 0) + len(old)
+
+
+class ReportCheck:
+    """Service ``name``'s check of each region's progress reports against ``counts``: a report
+    counting scans not heard has them fetched first (``fetch(region)``, blocking); still short,
+    it is set aside and asked again at each later report or :meth:`retry`, for up to SHORT_FOR s
+    of wall time, and then the scans are named lost in the log and the report is taken."""
+
+    def __init__(self, name: str, counts: RegionScanCounts, fetch: Callable[[str], object],
+                 now: Callable[[], float] = time.monotonic):
+        self.name = name
+        self.counts = counts
+        self.fetch = fetch
+        self.now = now
+        self.reported: dict[str, tuple[float, int]] = {}  # region → (t, sent) of its last report
+        self.short: dict[str, float] = {}  # region → wall time (s) since its reports count scans not heard
+
+    def complete(self, region: str, t: float, sent: int, wait: bool = True) -> bool:
+        """Whether the report of ``region`` up to ``t`` (s) counting ``sent`` scans may be taken
+        (set aside otherwise; never set aside without ``wait``)."""
+        self.reported[region] = (t, sent)
+        if not self.counts.missing(region, t, sent):
+            self.short.pop(region, None)
+            return True
+        self.fetch(region)
+        missing = self.counts.missing(region, t, sent)
+        if not missing:
+            log.info("%s: region %s's scans up to t=%g s had not all arrived; fetched from its base station",
+                     self.name, region, t)
+            self.short.pop(region, None)
+            return True
+        if wait and self.now() - self.short.setdefault(region, self.now()) < SHORT_FOR:
+            return False
+        log.warning("%s: %d scans region %s's base station published up to t=%g s never arrived and it no longer "
+                    "gives them; merged without them", self.name, missing, region, t)
+        self.counts.older[region] = self.counts.older.get(region, 0) + missing
+        self.short.pop(region, None)
+        return True
+
+    def retry(self, live: set[str]) -> list[tuple[str, float]]:
+        """(region, t) of each report set aside, of the ``live`` regions, that may be taken now
+        (no later report came to ask again)."""
+        return [(region, self.reported[region][0]) for region in list(self.short)
+                if region in live and self.complete(region, *self.reported[region])]
+
+    def finish(self) -> None:
+        """At the end of the stream: every region's last report checked, nothing set aside."""
+        for region, (t, sent) in list(self.reported.items()):
+            self.complete(region, t, sent, wait=False)
