@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from bintrack.errors import BintrackError
-from bintrack.live.checkpoint_slots import SlotFile, is_slot_file, latest_payload
+from bintrack.live.checkpoint_slots import MAGIC, SlotFile, is_slot_file, latest_payload
 from bintrack.live.moved_classes import CheckpointUnpickler
 
 if TYPE_CHECKING:
@@ -74,9 +74,11 @@ def load_checkpoint(path: str):
         raise CheckpointRefused(f"not loaded: {reason}")
     try:
         with open(path, "rb") as handle:
-            data = handle.read()
-        payload = latest_payload(data) if is_slot_file(data) else data
-        return CheckpointUnpickler(io.BytesIO(payload)).load()
+            if not is_slot_file(handle.read(len(MAGIC))):  # a new file's pickle: read as it streams
+                handle.seek(0)
+                return CheckpointUnpickler(handle).load()
+            handle.seek(0)
+            return CheckpointUnpickler(io.BytesIO(latest_payload(handle.read()))).load()
     except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError, ValueError) as exc:
         raise CheckpointRefused(f"unreadable ({type(exc).__name__}: {exc})") from exc
 
