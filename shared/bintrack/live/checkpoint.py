@@ -63,7 +63,8 @@ def load_checkpoint(path: str):
 
     Raises :class:`CheckpointRefused` if the file or its folder is not the user's own and
     private to writes, or if it cannot be read back (cut short in both slots, from another
-    version). A plain pickle (what versions before the slot file wrote) is read as well. Classes
+    version). It reads a slot file (:mod:`bintrack.live.checkpoint_slots`) or a plain pickle (a
+    throttled checkpoint, or any of an earlier version). Classes
     that moved since the checkpoint was taken are found at their new homes
     (:mod:`bintrack.live.moved_classes`).
     """
