@@ -147,8 +147,9 @@ class HostedSensors:
             else:  # a checkpoint of an earlier version: (schema version, *Sent)
                 fields = dict(zip(TRANSITION_FIELDS, kept))
                 transition = Sent(**{name: fields[name] for name in Sent._fields})
+                kept = encode_transition(*transition)
             self.recent.append(transition)
-            self.recent_payloads.append(encode_transition(*transition))
+            self.recent_payloads.append(kept)
             self.sensors[transition.sensor].remember(transition)
         for sid, last_t in saved.sensors.items():
             hosted = self.sensors[sid]
