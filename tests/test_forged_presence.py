@@ -1,6 +1,6 @@
-"""Presence that cannot be forged: a liveliness token declared by another client mid-run, on an
-open bus and under the secure profile with a service's own certificate, leaves the run
-complete (the offline rows, exit 0). On an open bus ``up`` and its services log it once and
+"""Presence that cannot be forged: a liveliness token declared by another client while the stack
+runs, on an open bus and under the secure profile with a service's own certificate, leaves the
+run complete (the offline rows, exit 0). On an open bus ``up`` and its services log it once and
 ignore it (they count only the tokens of the run's own instances); under ``--secure`` the
 router lets each role declare the tokens of its instances in this run only."""
 
@@ -23,9 +23,10 @@ FORGED = ("sensor_agent", "replay", "basestation", "recorder")
 
 @contextlib.contextmanager
 def forged_tokens(up: Up, config: zenoh.Config, net: str, services=FORGED):
-    """Once event time reached 4 s: a session of its own declaring ``alive/<service>/evil``, held
-    until the block ends."""
-    up.event_time_at_least(4.0)
+    """Once ``up``'s router listens: a session of its own declaring ``alive/<service>/evil``,
+    held until the block ends. (Declared then, the tokens are there before the replay's first
+    sample on any load; at a given event time they could come after a run at ``--speed 0`` ended.)"""
+    up.wait_for(lambda line: line.startswith("up: router on "), "up's router")
     session = zenoh.open(config)
     tokens = [session.liveliness().declare_token(Keys(net).alive(s, "evil")) for s in services]
     try:
