@@ -4,9 +4,10 @@ Replay and the sensor agents save a checkpoint at every clock tick, tens of thou
 of event time. Writing a new file and renaming it over the old costs four system calls and a
 directory update each time (about 0.09 ms on tmpfs, loaded); one ``pwritev`` into a file kept
 open, pickling included, about 0.04 ms. (A tracker's checkpoint, megabytes and throttled, is
-still a new file: :func:`bintrack.live.checkpoint.save_checkpoint`.) A kill can cut a write short, so the file has two slots and each save goes into
-the one not holding the latest checkpoint: a cut write spoils only the slot being written, and
-its checksum shows it. Reading takes the newest slot whose checksum holds.
+still a new file: :func:`bintrack.live.checkpoint.save_checkpoint`.) A kill can cut a write
+short, so the file has two slots and each save goes into the one not holding the latest
+checkpoint: a cut write spoils only the slot being written, and its checksum shows it. Reading
+takes the newest slot whose checksum holds.
 
 Layout: a header (magic, slot capacity) written once, when the file is made; then two slots of
 that capacity, each ``seq, length, crc32`` and the payload. A payload too large for its slot
@@ -67,7 +68,12 @@ class SlotFile:
 
 def _head(seq: int, payload: bytes) -> bytes:
     """A slot's record header for ``payload``, the ``seq``-th save."""
-    return RECORD.pack(seq, len(payload), zlib.crc32(payload, zlib.crc32(struct.pack("<QQ", seq, len(payload)))))
+    return RECORD.pack(seq, len(payload), _checksum(seq, payload))
+
+
+def _checksum(seq: int, payload: bytes) -> int:
+    """CRC-32 of a record's ``seq``, length and ``payload``: what a cut write spoils."""
+    return zlib.crc32(payload, zlib.crc32(struct.pack("<QQ", seq, len(payload))))
 
 
 def is_slot_file(data: bytes) -> bool:
@@ -92,7 +98,7 @@ def latest_payload(data: bytes) -> bytes:
         payload = data[start + RECORD.size:start + RECORD.size + length]
         if length > capacity - RECORD.size or len(payload) != length:
             continue
-        if zlib.crc32(payload, zlib.crc32(struct.pack("<QQ", seq, length))) == crc and (best is None or seq > best[0]):
+        if _checksum(seq, payload) == crc and (best is None or seq > best[0]):
             best = (seq, payload)
     if best is None:
         raise ValueError("neither slot holds a whole checkpoint")
