@@ -168,8 +168,9 @@ def run_ours(case: Case) -> None:
         case.scan_period = float(np.median(np.diff([r.t for r in case.reports])))
 
     # Stone Soup cannot tell our fusion where its tracks expect targets, so it gets the fusion's
-    # reports without that aid (and without the copies made for unresolved targets)
-    plain = MCMCDATracker(dataset.deployment, FusionConfig(track_aided=False))
+    # reports without that aid (and without the copies made for unresolved targets), with the
+    # bars in fixed nats as the peers were tuned on them
+    plain = MCMCDATracker(dataset.deployment, FusionConfig(track_aided=False, evidence_reference=None))
     case.plain_reports = [out for out in run_tracker(dataset, plain) if isinstance(out, PositionReports)]
 
     online = OnlineMCMCDA(config, tracker.name)

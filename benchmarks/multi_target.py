@@ -184,6 +184,11 @@ VARIANTS: dict[str, dict] = {
     "adapt200": {"mcmcda": {"adapt_rates": 200}},
     "adapt1000": {"mcmcda": {"adapt_rates": 1000}},
     "noexit": {"mcmcda": {"exit_depth": None}},
+    "evidence1.5": {"fusion": {"evidence_reference": 1.5}},
+    "evidence1.6": {"fusion": {"evidence_reference": 1.6}},
+    "evidence1.8": {"fusion": {"evidence_reference": 1.8}},
+    "evidence1.9": {"fusion": {"evidence_reference": 1.9}},
+    "noevidence": {"fusion": {"evidence_reference": None}},
     "exit0": {"mcmcda": {"exit_depth": 0.0}},
     "exit2": {"mcmcda": {"exit_depth": 2.0}},
     "exit3": {"mcmcda": {"exit_depth": 3.0}},
@@ -240,7 +245,8 @@ def run_ours(args) -> tuple:
         case.config = tracker.mcmcda.config
         scores.append(vs.score(tracks, case, [whole / max(len(reports), 1)]))
     if variant == "default":
-        plain = MCMCDATracker(data.deployment, FusionConfig(track_aided=False))
+        # the peers' input as they were tuned on it: the bars in fixed nats
+        plain = MCMCDATracker(data.deployment, FusionConfig(track_aided=False, evidence_reference=None))
         case.plain_reports = [out for out in run_tracker(data, plain) if isinstance(out, PositionReports)]
     return name, scores, case
 
@@ -354,6 +360,8 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"only this Stone Soup tracker (repeatable; default all: {', '.join(KINDS)})")
     parser.add_argument("--ours-only", action="store_true",
                         help="ours (defaults and --variant) on the tuning half only; no Stone Soup")
+    parser.add_argument("--variants-only", action="store_true",
+                        help="with --ours-only: the --variant runs alone, not the defaults beside them")
     parser.add_argument("--only", choices=sorted(VARIANTS),
                         help="just this setting of ours on both halves (no Stone Soup, no defaults)")
     parser.add_argument("--tuned", type=Path,
@@ -410,7 +418,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.conditions_only:
             return run_conditions(progress, tuned, kinds, seeds, args)
         jobs = [(name, path, seeds, args.only or "default") for name, (half, path) in names.items()
-                if not args.ours_only or half == "tuning"]
+                if not args.ours_only or (half == "tuning" and not args.variants_only)]
         jobs += [(name, path, seeds, v) for v in args.variant for name, (half, path) in names.items() if half == "tuning"]
         ours: dict[tuple[str, str], list] = {}
         cases = {}
@@ -424,7 +432,7 @@ def main(argv: list[str] | None = None) -> int:
         tuning = [n for n, (h, _) in names.items() if h == "tuning"]
         held = [n for n, (h, _) in names.items() if h == "held-out"]
         if args.ours_only:
-            print(_ours_table(ours, tuning, ["default", *args.variant], halves))
+            print(_ours_table(ours, tuning, [*([] if args.variants_only else ["default"]), *args.variant], halves))
             return 0
         if args.only:
             for group in (tuning, held):

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bintrack.errors import TrackerConfigError
 from bintrack.formats import open_dataset
 from bintrack.pipeline import run_tracker
 from bintrack.trackers import make_tracker
@@ -56,6 +57,26 @@ def test_a_track_expecting_its_target_lowers_the_bar_for_weak_evidence():
     # the same two detections far from where the track expects its target support nothing
     away = [Expectation(x=5.0, y=40.0, sigma=1.5, vx=1.0, vy=0.0, reports=10, unreported=1)]
     assert fusion.reports(detecting, away) == []
+
+
+def test_cleaner_sensors_raise_the_bar_for_a_new_target_in_proportion_to_their_evidence():
+    clean = grid_deployment(pd=0.95, pfa=0.01)  # 4.18 nats per covering sensor against 1.7
+    fusion = GridFusion(clean)
+    assert fusion.bar_scale == pytest.approx(4.178 / 1.7, rel=1e-3)
+    assert fusion.config.min_gain == pytest.approx(4.0 * fusion.bar_scale)
+    assert fusion.config.expected_split_gain == pytest.approx(4.0 * fusion.bar_scale)
+    fixed = GridFusion(clean, FusionConfig(evidence_reference=None))
+    detecting = np.zeros(len(fusion.ids), dtype=bool)
+    for sensor in ("n0404", "n0405", "n0505", "n0504"):  # four of the ~8 covering (22.5, 22.5)
+        detecting[fusion.index[sensor]] = True
+    (report,) = fixed.reports(detecting)  # 6.3 nats: over 4, under 9.8
+    assert 4.0 < report.weight < fusion.config.min_gain
+    assert fusion.reports(detecting) == []
+    # paper 004's sensors (1.5 nats), and sensors that state no pd or pfa, keep the bars in nats
+    assert GridFusion(grid_deployment()).bar_scale == 1.0
+    assert GridFusion(grid_deployment(pd=None, pfa=None)).bar_scale == 1.0
+    with pytest.raises(TrackerConfigError, match="evidence_reference"):
+        GridFusion(clean, FusionConfig(evidence_reference=0.0))
 
 
 def test_a_tracked_person_and_an_untracked_one_beside_them_are_two_reports():

@@ -24,7 +24,7 @@ more than a sensing range apart and make satellites around one person.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.sparse import csr_matrix
@@ -42,6 +42,20 @@ from bintrack.trackers.multi.soft_footprint import SoftFootprint
 from bintrack.trackers.multi.track_expectation import Expectation
 
 DEFAULT_SCAN = 0.5  # s, when the sensors are event-driven (no sampling period)
+
+
+def bar_scale(pd: np.ndarray, pfa: np.ndarray, stated: list[bool], reference: float | None) -> float:
+    """How much the fit's bars grow for these sensors (``FusionConfig.evidence_reference``): the
+    median, over the sensors that state both pd and pfa, of the evidence a covering sensor gives
+    of a person, the divergence pd·log(pd/pfa) + (1 − pd)·log((1 − pd)/(1 − pfa)) in nats (the
+    mean of eq. (4)'s per-sensor term under a target), over ``reference``; 1 where that is
+    lower, where no sensor states both, or without a reference."""
+    keep = np.asarray(stated, dtype=bool)
+    if reference is None or not keep.any():
+        return 1.0
+    p, q = np.clip(pd[keep], 1e-9, 1 - 1e-9), np.clip(pfa[keep], 1e-9, 1 - 1e-9)
+    evidence = p * (np.log(p) - np.log(q)) + (1 - p) * (np.log1p(-p) - np.log1p(-q))
+    return max(float(np.median(evidence)) / reference, 1.0)
 
 
 class GridFusion:
@@ -68,6 +82,8 @@ class GridFusion:
             raise TrackerConfigError(f"fusion min_gain must be at least 0 nats, got {config.min_gain}")
         if not config.expected_split_gain >= 0:
             raise TrackerConfigError(f"fusion expected_split_gain must be at least 0 nats, got {config.expected_split_gain}")
+        if config.evidence_reference is not None and not config.evidence_reference > 0:
+            raise TrackerConfigError(f"fusion evidence_reference must be positive nats, got {config.evidence_reference}")
         if not config.shared_edge >= 0:
             raise TrackerConfigError(f"fusion shared_edge must be at least 0 sensing ranges, got {config.shared_edge}")
         if config.soft_spread is not None and not config.soft_spread > 0:
@@ -97,6 +113,12 @@ class GridFusion:
             """per sensor: log(pd/pfa), nats, the weight of a detection in eq. (4)"""
             self.log_miss_ratio = np.log1p(-pd_c) - np.log1p(-pfa_c)
             """per sensor: log((1 − pd)/(1 − pfa)), nats, the weight of a miss"""
+        self.bar_scale = bar_scale(pd, pfa, [s.pd is not None and s.pfa is not None for s in sensors],
+                                   config.evidence_reference)
+        """what ``min_gain`` and ``expected_split_gain`` are multiplied by here (``evidence_reference``)"""
+        if self.bar_scale != 1.0:
+            self.config = config = replace(config, min_gain=config.min_gain * self.bar_scale,
+                                           expected_split_gain=config.expected_split_gain * self.bar_scale)
         region = deployment.region
         h = config.cell if config.cell is not None else float(min(s.range for s in sensors)) / 8.0
         self.cell = h

@@ -37,6 +37,14 @@ class FusionConfig:
     """"fit": the least gain, nats, for which a target placed where a track expects one is split
     in two, the track's target (still within its gate) and a new one; ``inf``: never (4 chosen
     on the tuning half of ``benchmarks/multi_target.py``)"""
+    evidence_reference: float | None = 1.7
+    """"fit": nats. ``min_gain`` and ``expected_split_gain`` hold as they are for sensors whose
+    evidence of a person per covering sensor, pd·log(pd/pfa) + (1 − pd)·log((1 − pd)/(1 − pfa))
+    (the median over the sensors that state both), is at most this; for cleaner sensors both
+    grow in proportion to it (:func:`.fusion.bar_scale`). A person then gives more evidence, and
+    a fixed bar lets stray detections and split blobs through as new targets. 1.7 chosen on the
+    tuning half of ``benchmarks/multi_target.py`` (paper 004's sensors, pd 0.7 and pfa 0.05,
+    give 1.5); None: the bars in fixed nats"""
     split: bool = True
     """"fit": try replacing each target by two"""
     shared: bool = True

@@ -25,6 +25,8 @@ ceiling-PIR recording of Milan et al., ACCV 2014 workshops; reported on r1-mediu
 * ``exit_depth`` None: a track is coasted near the room's walls too, as before exits were
   added (they were chosen on paper 004's outdoor grid, where people leave across the field's
   edge, and not tried in the room);
+* ``evidence_reference`` None: the bars stay in fixed nats however clean the fitted sensors (the
+  scaling was chosen on paper 004's outdoor grid, and not tried in the room);
 * births: λ_b ten times lower farther than 1.5 m from the walls (``MCMCDAConfig.birth_edge``):
   people enter through the doors.
 """
@@ -68,5 +70,5 @@ def pir_settings(deployment: Deployment, fusion: FusionConfig, config: MCMCDACon
         m = deployment.metres_per_unit
         config = replace(config, birth_edge=DOOR_DEPTH, birth_area=(r.xmin * m, r.ymin * m, r.xmax * m, r.ymax * m))
     fusion = replace(fusion, min_gain=PIR_MIN_GAIN, expected_split_gain=PIR_SPLIT_GAIN, threshold=PIR_THRESHOLD,
-                     soft_spread=PIR_SPREAD)
+                     soft_spread=PIR_SPREAD, evidence_reference=None)
     return fusion, config
