@@ -630,7 +630,8 @@ def plot(data: dict, path: Path, extra: dict | None = None) -> None:
         mean = np.array([np.mean(v) if v else np.nan for v in g])
         lo = np.array([min(v) if v else np.nan for v in g])
         hi = np.array([max(v) if v else np.nan for v in g])
-        ax.errorbar(x + dx, mean, yerr=[mean - lo, hi - mean], fmt="o", color=colour, capsize=3,
+        # (a grid whose seeds agree can give a mean a rounding error outside min-max)
+        ax.errorbar(x + dx, mean, yerr=np.maximum([mean - lo, hi - mean], 0.0), fmt="o", color=colour, capsize=3,
                     label=f"{label}: mean over sampler seeds, bar min-max")
     for kind, marker, colour in (("GNN", "s", "C1"), ("JPDA", "^", "C2"), ("JIPDA", "v", "C4"), ("MFA", "D", "C5"),
                                  ("PHD", "x", "C6")):
