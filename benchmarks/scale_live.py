@@ -21,7 +21,8 @@ time (the people are all in the field after P/10 s). Measured, side by side for 
   heard through their site's router (each says so at its stop), mean over the sites;
 * the CPU of each site's router and of ``up`` itself, which runs the hub's router.
 
-``up``'s own log is kept beside the recording under ``--out``. Needs root (network namespaces);
+``up``'s own log is kept beside the recording under ``--out``; a run that has not ended after
+``--timeout`` s is stopped and reported as such. Needs root (network namespaces);
 says so in one line otherwise.
 """
 
@@ -32,6 +33,7 @@ import ast
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -102,9 +104,10 @@ def cpu_seconds(pid: int) -> float | None:
     return (int(fields[11]) + int(fields[12])) / TICK
 
 
-def run_up(folder: Path, regions: int, speed: float, out: Path) -> tuple[dict[str, float], float, str]:
+def run_up(folder: Path, regions: int, speed: float, out: Path, timeout: float) -> tuple[dict[str, float], float, str] | None:
     """``up`` on ``folder`` with its regions on hosts; CPU seconds per service instance, the
-    wall seconds of the run and up's log."""
+    wall seconds of the run and up's log; None if it had not ended after ``timeout`` s (it is
+    then stopped, as Ctrl-C would)."""
     record = out / "run.mcap"
     record.unlink(missing_ok=True)
     log_path = out / "up.log"
@@ -117,6 +120,11 @@ def run_up(folder: Path, regions: int, speed: float, out: Path) -> tuple[dict[st
         up = subprocess.Popen(argv, stderr=log, stdout=log, cwd=REPO)
         said = started
         while up.poll() is None:
+            if time.monotonic() - started > timeout:
+                say(f"scale_live: up had not ended after {timeout:g} s; stopping it (its log: {log_path})")
+                up.send_signal(signal.SIGINT)
+                up.wait()
+                return None
             seconds = cpu_seconds(up.pid)
             if seconds is not None:
                 cpu[up.pid] = ("up-hub", seconds)  # up runs the hub's router in its own process
@@ -175,7 +183,10 @@ def measure(args: argparse.Namespace, grid: int, people: int) -> dict:
         folder = window(source, args.until, Path(tmp) / source.name)
         say(f"{grid * grid} sensors, {people} people, {args.regions} regions on hosts, --speed {args.speed}, "
             f"event time 0–{args.until:g} s …")
-        cpu, wall, text = run_up(folder, args.regions, args.speed, out)
+        ran = run_up(folder, args.regions, args.speed, out, args.timeout)
+    if ran is None:
+        return {"sensors": grid * grid, "people": people, "stalled": args.timeout, "log": str(out / "up.log")}
+    cpu, wall, text = ran
     t, lag = lags(out / "run.mcap")
     tenth = max(len(t) // 10, 1)
     span = float(t[-1] - t[0]) if len(t) > 1 else float("nan")
@@ -197,10 +208,13 @@ def report(rows: list[dict], args: argparse.Namespace) -> str:
              f"{'sensors':>8} {'people':>6} {'scans':>6} {'lag p50':>8} {'lag p99':>8} {'first 10%':>9} "
              f"{'last 10%':>9} {'event/wall':>10} {'msgs/router/s':>14}"]
     for r in rows:
+        if "stalled" in r:
+            lines.append(f"{r['sensors']:>8} {r['people']:>6}  did not end within {r['stalled']:g} s (log: {r['log']})")
+            continue
         lines.append(f"{r['sensors']:>8} {r['people']:>6} {r['scans']:>6} {r['p50']:>7.2f}s {r['p99']:>7.2f}s "
                      f"{r['first']:>8.2f}s {r['last']:>8.2f}s {r['rate']:>10.2f} {r['router']:>14.0f}")
     lines.append("CPU, share of one core over the run: role: sum over its instances (busiest, instances)")
-    for r in rows:
+    for r in (r for r in rows if "stalled" not in r):
         roles = "; ".join(f"{role} {total:.2f} ({busiest:.2f}, {n})" for role, (total, busiest, n) in r["roles"].items())
         lines.append(f"{r['sensors']:>8}: {roles}")
     return "\n".join(lines)
@@ -213,6 +227,8 @@ def main() -> int:
     parser.add_argument("--regions", type=int, default=4, help="regions, each on a host of its own (default 4)")
     parser.add_argument("--until", type=float, default=60.0, help="event seconds replayed (default 60)")
     parser.add_argument("--speed", type=float, default=1.0, help="replay speed (default 1)")
+    parser.add_argument("--timeout", type=float, default=900.0,
+                        help="stop a run that has not ended after this many s of wall time (default 900)")
     parser.add_argument("--seed", type=int, default=1, help="simulation seed (default 1)")
     parser.add_argument("--cache", default=str(REPO / "benchmarks" / ".cache"), help="where the fields are kept")
     parser.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "bintrack-scale-live",
