@@ -44,17 +44,15 @@ from bintrack.trackers.multi.track_expectation import Expectation
 DEFAULT_SCAN = 0.5  # s, when the sensors are event-driven (no sampling period)
 
 
-def bar_scale(pd: np.ndarray, pfa: np.ndarray, stated: list[bool], reference: float | None) -> float:
-    """How much the fit's bars grow for these sensors (``FusionConfig.evidence_reference``): the
-    median, over the sensors that state both pd and pfa, of the evidence a covering sensor gives
-    of a person, the divergence pd·log(pd/pfa) + (1 − pd)·log((1 − pd)/(1 − pfa)) in nats (the
-    mean of eq. (4)'s per-sensor term under a target), over ``reference``; 1 where that is
-    lower, where no sensor states both, or without a reference."""
-    keep = np.asarray(stated, dtype=bool)
-    if reference is None or not keep.any():
+def bar_scale(pd: np.ndarray, log_hit_ratio: np.ndarray, log_miss_ratio: np.ndarray, reference: float | None) -> float:
+    """How much the fit's bars grow for these sensors (``FusionConfig.evidence_reference``; pass
+    those that state both pd and pfa): the median of the evidence a covering sensor gives of a
+    person, pd·log(pd/pfa) + (1 − pd)·log((1 − pd)/(1 − pfa)) in nats from eq. (4)'s per-sensor
+    weights (their mean under a target), over ``reference``; 1 where that is lower, for no
+    sensors, or without a reference."""
+    if reference is None or pd.size == 0:
         return 1.0
-    p, q = np.clip(pd[keep], 1e-9, 1 - 1e-9), np.clip(pfa[keep], 1e-9, 1 - 1e-9)
-    evidence = p * (np.log(p) - np.log(q)) + (1 - p) * (np.log1p(-p) - np.log1p(-q))
+    evidence = pd * log_hit_ratio + (1 - pd) * log_miss_ratio
     return max(float(np.median(evidence)) / reference, 1.0)
 
 
@@ -113,7 +111,8 @@ class GridFusion:
             """per sensor: log(pd/pfa), nats, the weight of a detection in eq. (4)"""
             self.log_miss_ratio = np.log1p(-pd_c) - np.log1p(-pfa_c)
             """per sensor: log((1 − pd)/(1 − pfa)), nats, the weight of a miss"""
-        self.bar_scale = bar_scale(pd, pfa, [s.pd is not None and s.pfa is not None for s in sensors],
+        stated = np.array([s.pd is not None and s.pfa is not None for s in sensors])
+        self.bar_scale = bar_scale(pd_c[stated], self.log_hit_ratio[stated], self.log_miss_ratio[stated],
                                    config.evidence_reference)
         """what ``min_gain`` and ``expected_split_gain`` are multiplied by here (``evidence_reference``)"""
         if self.bar_scale != 1.0:
