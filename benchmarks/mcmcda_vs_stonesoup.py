@@ -137,12 +137,24 @@ def load_case(name: str, path: Path) -> Case:
 # --------------------------------------------------------------------------- ours
 
 
+def plain_reports(dataset) -> list:
+    """Stone Soup's input on ``dataset``: the fusion's reports (``PositionReports`` per scan)
+    without the track aid, which Stone Soup cannot give (so without the copies made for
+    unresolved targets either), and with the bars in fixed nats, as the peers were tuned on them."""
+    from bintrack.bus_payloads import PositionReports
+    from bintrack.pipeline import run_tracker
+    from bintrack.trackers.multi.fusion_config import FusionConfig
+    from bintrack.trackers.multi.tracker import MCMCDATracker
+
+    plain = MCMCDATracker(dataset.deployment, FusionConfig(track_aided=False, evidence_reference=None))
+    return [out for out in run_tracker(dataset, plain) if isinstance(out, PositionReports)]
+
+
 def run_ours(case: Case) -> None:
     """Run our MCMCDA tracker over the events once, keep its reports and tracks per scan, and
     time ``OnlineMCMCDA.step`` alone by replaying the same reports into a fresh instance (same
     config and seed, so it must give the same tracks)."""
     from bintrack.formats import open_dataset
-    from bintrack.trackers.multi.fusion_config import FusionConfig
     from bintrack.trackers.multi.mcmcda import OnlineMCMCDA
     from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
     from bintrack.bus_payloads import PositionReports, TrackSet
@@ -167,11 +179,7 @@ def run_ours(case: Case) -> None:
     if len(case.reports) > 1:
         case.scan_period = float(np.median(np.diff([r.t for r in case.reports])))
 
-    # Stone Soup cannot tell our fusion where its tracks expect targets, so it gets the fusion's
-    # reports without that aid (and without the copies made for unresolved targets), with the
-    # bars in fixed nats as the peers were tuned on them
-    plain = MCMCDATracker(dataset.deployment, FusionConfig(track_aided=False, evidence_reference=None))
-    case.plain_reports = [out for out in run_tracker(dataset, plain) if isinstance(out, PositionReports)]
+    case.plain_reports = plain_reports(dataset)
 
     online = OnlineMCMCDA(config, tracker.name)
     replayed = {}

@@ -223,10 +223,8 @@ def run_ours(args) -> tuple:
     Case with the reports of the fusion without track aid (Stone Soup's input)."""
     name, path, seeds, variant = args
     from bintrack.formats import open_dataset
-    from bintrack.trackers.multi.fusion_config import FusionConfig
     from bintrack.bus_payloads import PositionReports, TrackSet
     from bintrack.pipeline import run_tracker
-    from bintrack.trackers.multi.tracker import MCMCDATracker
 
     case = vs.load_case(name, path)
     data = open_dataset(path)
@@ -245,9 +243,7 @@ def run_ours(args) -> tuple:
         case.config = tracker.mcmcda.config
         scores.append(vs.score(tracks, case, [whole / max(len(reports), 1)]))
     if variant == "default":
-        # the peers' input as they were tuned on it: the bars in fixed nats
-        plain = MCMCDATracker(data.deployment, FusionConfig(track_aided=False, evidence_reference=None))
-        case.plain_reports = [out for out in run_tracker(data, plain) if isinstance(out, PositionReports)]
+        case.plain_reports = vs.plain_reports(data)
     return name, scores, case
 
 
