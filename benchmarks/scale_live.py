@@ -48,8 +48,6 @@ from scale import simulate  # the same field as benchmarks/scale.py (beside it)
 from bintrack.formats import DEPLOYMENT_FILE
 from bintrack.hosts.netns import unavailable
 from bintrack.live.recording import open_recording
-from bintrack.bus_payloads import Clock
-from bintrack.message_codec import decode
 
 TICK = os.sysconf("SC_CLK_TCK")
 
@@ -153,13 +151,9 @@ def run_up(folder: Path, regions: int, speed: float, out: Path, timeout: float) 
 
 def lags(record: Path) -> tuple[np.ndarray, np.ndarray]:
     """Per merged scan: its event time (s) and its lag (s) from the replay reaching that time."""
-    recording = open_recording(record)
     ticks, merged = [], []
-    for item in recording.records(lambda key: key.endswith("/clock") or key.endswith("/tracks")):
-        if item.kind == "clock":
-            ticks.append((decode(Clock, item.payload).t, item.received_ns / 1e9))
-        elif item.kind == "tracks":
-            merged.append((item.t, item.received_ns / 1e9))
+    for item, message in open_recording(record).messages({"clock", "tracks"}):
+        (ticks if item.kind == "clock" else merged).append((message.t, item.received_ns / 1e9))
     if not ticks or not merged:
         raise SystemExit(f"scale_live: {record} holds {len(ticks)} clock ticks and {len(merged)} merged scans")
     start = min(wall - t for t, wall in ticks)  # wall time of event time 0
@@ -193,13 +187,12 @@ def measure(args: argparse.Namespace, grid: int, people: int) -> dict:
     roles: dict[str, list[float]] = defaultdict(list)
     for label, seconds in cpu.items():
         roles[label.partition("-")[0]].append(seconds / wall)
-    return {"sensors": grid * grid, "people": people, "wall": wall, "scans": len(t),
+    return {"sensors": grid * grid, "people": people, "scans": len(t),
             "p50": float(np.percentile(lag, 50)), "p99": float(np.percentile(lag, 99)),
             "first": float(np.median(lag[:tenth])), "last": float(np.median(lag[-tenth:])),
             "rate": span / max(span + float(lag[-1] - lag[0]), 1e-9),
             "roles": {r: (sum(v), max(v), len(v)) for r, v in sorted(roles.items())},
-            "router": sum(heard(text).values()) / args.regions / args.until,
-            "log": str(out / "up.log")}
+            "router": sum(heard(text).values()) / args.regions / args.until}
 
 
 def report(rows: list[dict], args: argparse.Namespace) -> str:
