@@ -123,6 +123,8 @@ class FoxgloveBridge(Service):
                 self.scene.log(json.dumps(update, separators=(",", ":")).encode())
         if kind == "clock":
             self.report_progress(message.t)
+        elif kind == "eos":  # every time: replay repeats it until each awaited service reports done
+            self.report_done(message.t)
 
     async def main(self) -> None:
         deployment = await self.wait_for_deployment()

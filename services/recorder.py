@@ -133,7 +133,7 @@ class Recorder(Service):
             self.refill.tick(admitted.t)
             self.sink.ticked(admitted)
         elif kind == "eos":
-            self.end.on_eos(admitted.message.t)
+            self.end.on_eos(admitted.message.t, admitted.message.awaited or ())
         elif kind == "done":
             self.end.on_done(admitted.parsed.service, admitted.parsed.instance, admitted.message.t)
 

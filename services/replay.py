@@ -9,8 +9,10 @@ Serves the ``deployment`` queryable, waits for the ``--wait-for`` services, then
 ``raw/<sensor>`` (and its truth.csv rows, if any, as ``TruthSample`` on ``truth``), a recording's samples on their recorded keys with the payload bytes
 unchanged; ``Clock`` ticks on ``clock``, each published only once every live consumer (any
 service holding an ``alive/`` token, replays excepted) has reported progress up to the tick
-``--max-ahead`` before it; at the end ``EndOfStream`` on ``control/eos``. Exits 0 after the
-(last) end of stream, 1 if the awaited services never came, 2 for a bad source.
+``--max-ahead`` before it; at the end ``EndOfStream`` on ``control/eos``, said again to an
+awaited service that comes back after it. Exits 0 once every live instance of the awaited
+services has reported done after the (last) end of stream, 1 if they never came, 2 for a bad
+source.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from bintrack.live.replay_schedule import MAX_GAP, TICK_FASTEST, TICK_WALL, defa
 from bintrack.live.replay_source import ReplaySource
 from bintrack.live.service import Service, service_main
 from bintrack.live.session_options import add_bus_arguments
-from bintrack.bus_payloads import Clock
+from bintrack.bus_payloads import Clock, EndOfStream
 from bintrack.message_codec import encode
 
 log = logging.getLogger("bintrack")
@@ -119,8 +121,8 @@ class Replay(Service):
         self.source.check()
 
     def listen_key(self) -> str:
-        """Replay hears only the services' progress reports (not the traffic it causes)."""
-        return self.keys.progress()
+        """Replay hears only the services' progress and done reports (not the traffic it causes)."""
+        return f"{self.keys.prefix}/control/*/*/*"
 
     async def setup(self) -> None:
         checkpoint = self.checkpoints.load(ReplayCheckpoint)
@@ -141,6 +143,7 @@ class Replay(Service):
         # loaded machine, and a restarted replay then waited for services that were up)
         self.follow_presence(self.gate.on_presence)
         self.subscribe(self.keys.progress(), self._on_progress)
+        self.subscribe(self.keys.done(), self._on_done)
         try:  # the others fetch the deployment and start meanwhile; a bad row is one line, before "ready"
             await self.checked
         except ValueError as exc:  # FormatError
@@ -161,6 +164,12 @@ class Replay(Service):
         if message is not None:
             parsed = parse_key(str(sample.key_expr))
             self.gate.reported(parsed.service, parsed.instance, message.t)
+
+    def _on_done(self, sample: zenoh.Sample) -> None:
+        message = self.decode(EndOfStream, sample)
+        if message is not None:
+            parsed = parse_key(str(sample.key_expr))
+            self.gate.reported_done(parsed.service, parsed.instance, message.t)
 
     def stop(self) -> None:
         super().stop()

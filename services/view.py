@@ -106,6 +106,8 @@ class View(Service):
             self.bad.report(key, f"{item['k']} of a sensor or node not in the deployment")
         if kind == "clock":
             self.report_progress(message.t)
+        elif kind == "eos":  # every time: replay repeats it until each awaited service reports done
+            self.report_done(message.t)
 
     def on_presence(self, parsed, present: bool) -> None:
         if parsed.kind == "alive":

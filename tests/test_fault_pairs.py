@@ -94,3 +94,19 @@ def test_mcmcda_pairs_killed_together(field, offline, victims, seed, tmp_path):
 def test_mcmcda_pairs_killed_together_at_speed_2(field, offline, victims, seed, tmp_path):
     up, live = run_with_a_kill(field, tmp_path, "mcmcda", 2, victims, kill_time(seed, 12.0, 20.0))
     check_rows(up, live, offline("mcmcda"))
+
+
+@pytest.mark.parametrize("tracker, victims", [("mcmcda", ("basestation",)), ("mcmcda", ("sensor_agent", "basestation")),
+                                              ("equal-weight", ("basestation",)),
+                                              ("equal-weight", ("peer_agent", "basestation"))])
+def test_killed_after_the_end_of_stream_went_out(field, offline, tracker, victims, tmp_path):
+    """Killed once replay has published its end: replay says it again to the restarted ones,
+    the services downstream wait for them, and the run ends with the offline rows (it used to
+    hang, or to end without the rows the killed ones still owed)."""
+    recording = tmp_path / "run.mcap"
+    up = Up(str(field), "--tracker", tracker, "--speed", "0", *FINE, "--record", str(recording), "--exit-at-end")
+    up.wait_for(lambda line: "replay: end of stream at t=" in line, "the end of stream")
+    for pid in [up.service_pid(victim) for victim in victims]:  # they live on after done, until up stops
+        os.kill(pid, signal.SIGKILL)
+    assert up.finish() == 0, up.log[-4000:]
+    check_rows(up, exported_tracks(recording, tmp_path), offline(tracker))

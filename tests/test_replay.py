@@ -279,8 +279,15 @@ def test_replay_waits_for_each_consumer_to_acknowledge(tmp_path, zenoh_router, s
         # a new instance is not waited for on the ticks it never saw
         token = session.liveliness().declare_token(keys.alive("slow", "2"))
         wait_until(lambda: ticks == [0.0, 0.5, 1.0], what="the tick after the hold")
+        ends: list[EndOfStream] = []
+        heard = session.declare_subscriber(keys.eos(), lambda s: ends.append(decode(EndOfStream, s.payload.to_bytes())))
         session.put(keys.progress("slow", "2"), encode(Clock(t=10.0)))
+        # after its end, replay says it again until the awaited service reports done, then ends
+        wait_until(lambda: len(ends) >= 2, what="the end of stream said again")
+        assert replay.proc.poll() is None and ends[0] == ends[1] and ends[0].awaited == ["slow"]
+        session.put(keys.done("slow", "2"), encode(EndOfStream(t=ends[0].t)))
         assert replay.wait(HUNG) == 0, output(replay)
+        heard.undeclare()
         assert ticks == [0.0, 0.5, 1.0, 1.5, 2.0]
     finally:
         if token is not None:

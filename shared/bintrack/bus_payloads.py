@@ -158,6 +158,18 @@ class Clock(Message):
 
 
 class EndOfStream(Message):
-    """The replay has ended: flush and emit final results."""
+    """The replay has ended: flush and emit final results. Also a service's done report."""
 
     t: Seconds
+    awaited: list[str] | None = Field(
+        None, description="in replay's end of stream: the services it waits for (its --wait-for), each of whose "
+        "instances reports done. A service waits for those upstream of it to be live and done, also one it has not "
+        "seen live (it restarted after the end went out)")
+
+    @model_serializer(mode="wrap")
+    def _awaited_only_when_given(self, handler):
+        """``awaited`` is left out when absent, as before it was added (done reports unchanged)."""
+        data = handler(self)
+        if self.awaited is None:
+            data.pop("awaited", None)
+        return data

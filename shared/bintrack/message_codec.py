@@ -64,6 +64,7 @@ class _ClockView(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 class _EndOfStreamView(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     t: float
     version: Literal[1] = SCHEMA_VERSION
+    awaited: list[str] | None = None
 
 
 VIEWS: dict[type[Message], type[msgspec.Struct]] = {
@@ -91,17 +92,20 @@ def decode_view(cls: type[Message], payload: bytes | bytearray | memoryview):
     return decode(cls, payload)
 
 
-# Messages of scalar fields only, without aliases: their field dict is what model_dump(mode="json")
-# gives (same keys, same order, same values), so the hot path packs it directly.
+# Messages of plain fields (scalars, or a list or dict of them), without aliases: their field
+# dict is what model_dump(mode="json") gives (same keys, order and values), so the hot path
+# packs it directly.
 _FLAT = frozenset({RawSample, Transition, Clock, EndOfStream, LocalEstimate, TruthSample})
+_ADDED_LATER = {Clock: "sent_to", EndOfStream: "awaited"}  # optional fields left out when absent
 
 
 def encode(message: BaseModel) -> bytes:
     """msgpack bytes of ``message`` with field names as keys (aliases where a field has one)."""
     if type(message) in _FLAT:
         fields = message.__dict__
-        if type(message) is Clock and fields["sent_to"] is None:  # a field added later: absent, the bytes as before
-            fields = {name: value for name, value in fields.items() if name != "sent_to"}
+        later = _ADDED_LATER.get(type(message))
+        if later is not None and fields[later] is None:  # absent: the bytes as before it was added
+            fields = {name: value for name, value in fields.items() if name != later}
         return msgpack.packb(fields, use_bin_type=True)
     return msgpack.packb(message.model_dump(mode="json", by_alias=True), use_bin_type=True)
 

@@ -1,12 +1,20 @@
 """End of stream: a service finishes once replay's ``control/eos`` has come and every live
-instance of its upstream services has reported done."""
+instance of its upstream services has reported done. An upstream service that had instances
+and has none at the end (killed, restarting) is waited for, up to END_GRACE s: its restarted
+instance still owes what it had not published."""
 
 from __future__ import annotations
 
+import asyncio
+import logging
 from collections.abc import Callable, Iterable
 
 from bintrack.bus_payloads import EndOfStream as EndOfStreamMessage
 from bintrack.keys import ParsedKey, parse_key
+
+END_GRACE = 30.0  # s of wall clock an upstream service gone at the end of stream is waited for
+
+log = logging.getLogger("bintrack")
 
 
 class UpstreamDone:
@@ -21,20 +29,39 @@ class UpstreamDone:
         self.services = set(services)
         self.alive: set[tuple[str, str]] = set()
         self.done: dict[tuple[str, str], float] = {}
+        self.seen: set[str] = set()  # the watched services that had a live instance
+        self.given_up: set[str] = set()  # gone ones no longer waited for
 
     def on_presence(self, parsed: ParsedKey, present: bool) -> None:
         """A token of ``alive/<service>/<id>`` declared or withdrawn (a Presence listener)."""
         if parsed.kind == "alive" and parsed.service in self.services:
             entry = (parsed.service, parsed.instance)
             (self.alive.add if present else self.alive.discard)(entry)
+            if present:
+                self.seen.add(parsed.service)
+                self.given_up.discard(parsed.service)
 
     def on_done(self, service: str, instance: str, t: float) -> None:
         if service in self.services:
             self.done[(service, instance)] = t
 
+    def gone(self) -> list[str]:
+        """The watched services that had a live instance and have none now (not given up on)."""
+        live = {service for service, _ in self.alive}
+        return sorted(self.seen - live - self.given_up)
+
+    def expect(self, services: Iterable[str]) -> None:
+        """Replay awaits these services (its end of stream names them): wait for those watched
+        here as for one seen live, even if none was (this instance restarted after the end)."""
+        self.seen.update(self.services.intersection(services))
+
+    def give_up(self, services: Iterable[str]) -> None:
+        """Stop waiting for these gone services (until one of their instances is back)."""
+        self.given_up.update(services)
+
     @property
     def complete(self) -> bool:
-        return all(entry in self.done for entry in self.alive)
+        return all(entry in self.done for entry in self.alive) and not self.gone()
 
     def owing(self) -> list[tuple[str, str]]:
         """The live instances that have not reported done, in order."""
@@ -47,13 +74,15 @@ class EndOfStream:
     region's base station still waiting for transitions an agent counted) and calls
     :meth:`check` again."""
 
-    def __init__(self, upstream: Iterable[str], finish: Callable[[float], None],
+    def __init__(self, name: str, upstream: Iterable[str], finish: Callable[[float], None],
                  report_done: Callable[[float], None]):
+        self.name = name
         self.upstream = UpstreamDone(upstream)
         self.finish = finish
         self.report_done = report_done
         self.eos: float | None = None
         self.finished = False
+        self.grace: asyncio.TimerHandle | None = None  # the wait for a gone upstream service
 
     def follow(self, service) -> EndOfStream:
         """Hear ``service``'s (a :class:`~bintrack.live.service.Service`) liveliness tokens, done
@@ -68,7 +97,7 @@ class EndOfStream:
         def on_eos(sample) -> None:
             message = service.decode(EndOfStreamMessage, sample)
             if message is not None:
-                self.on_eos(message.t)
+                self.on_eos(message.t, message.awaited or ())
 
         service.follow_presence(self.on_presence)
         service.subscribe(service.keys.done(), on_done)
@@ -83,16 +112,39 @@ class EndOfStream:
         self.upstream.on_done(service, instance, t)
         self.check()
 
-    def on_eos(self, t: float) -> None:
+    def on_eos(self, t: float, awaited: Iterable[str] = ()) -> None:
+        """Replay's end of stream at ``t`` (s), which names the ``awaited`` services. Said again
+        after this service finished, it reports done again: replay repeats it for a downstream
+        service that came back after the end, which waits for this report."""
+        self.upstream.expect(awaited)
         if self.eos is None:
             self.eos = t
             self.check()
+        elif self.finished and t == self.eos:
+            self.report_done(t)
 
     def check(self) -> None:
-        """Finish if the time has come; ``finish`` returning False holds it (it calls again)."""
-        if self.eos is not None and not self.finished and self.upstream.complete:
+        """Finish if the time has come; ``finish`` returning False holds it (it calls again).
+        Called on the service's event loop."""
+        if self.eos is None or self.finished:
+            return
+        gone = self.upstream.gone()
+        if gone and self.grace is None:
+            log.warning("%s: end of stream at t=%g s while %s has no live instance; waiting up to %g s for it to "
+                        "come back and report done", self.name, self.eos, ", ".join(gone), END_GRACE)
+            self.grace = asyncio.get_running_loop().call_later(END_GRACE, self.give_up)
+        if self.upstream.complete:
             self.finished = True
             if self.finish(self.eos) is False:
                 self.finished = False
                 return
             self.report_done(self.eos)
+
+    def give_up(self) -> None:
+        """END_GRACE s after the end of stream found an upstream service gone: finish without it."""
+        gone = self.upstream.gone()
+        if gone and not self.finished:
+            log.warning("%s: %s did not come back within %g s of the end of stream; finishing without its done "
+                        "report (what it had not published is missing)", self.name, ", ".join(gone), END_GRACE)
+            self.upstream.give_up(gone)
+            self.check()

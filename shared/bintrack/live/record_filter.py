@@ -18,6 +18,9 @@ from bintrack.message_codec import MessageError, decode_view, is_resent
 # carry their seq, and remembering them per sensor would cost memory that grows for long)
 RESULTS = frozenset({"estimate", "fusion_reports", "tracks", "laser_objects", "motion_velocity", "region_reports",
                      "region_tracks"})
+# replay says its end of stream again until every awaited service has reported done, and a
+# finished service reports done again each time: each recorded once
+REPEATED = frozenset({"eos", "done"})
 DEDUPE_AFTER_RETURN = 1024  # result messages checked for duplicates after a service came back
 RECENT_PER_KEY = 64  # payloads remembered per key of RESULTS, to record a message sent again only once
 PARSED_KEYS = 65536  # distinct keys whose parse is remembered (a bound against key floods)
@@ -83,7 +86,8 @@ class RecordFilter:
 
     def admit(self, key: str, payload: bytes, attachment: bytes | None) -> Admitted | None:
         """The sample to record, or None: an unknown key, a progress report, a bad payload, a
-        duplicate after a service came back, or a raw sample a restarted replay sent again."""
+        duplicate after a service came back, an end of stream or done report said again, or a
+        raw sample a restarted replay sent again."""
         known = self.parsed.get(key)
         if known is None:
             try:
@@ -98,6 +102,8 @@ class RecordFilter:
             self.parsed[key] = known
         parsed, cls = known
         if parsed.kind in ("progress", "region_progress"):
+            return None
+        if parsed.kind in REPEATED and payload in self.recent.get(key, ()):
             return None
         try:
             message = decode_view(cls, payload)
@@ -129,6 +135,6 @@ class RecordFilter:
 
     def recorded(self, admitted: Admitted, key: str, payload: bytes) -> None:
         """``admitted`` was written."""
-        if admitted.parsed.kind in RESULTS:
+        if admitted.parsed.kind in RESULTS or admitted.parsed.kind in REPEATED:
             self.kept(key, payload, admitted.t, admitted.parsed.kind)
         self.last_t = max(self.last_t, admitted.t)

@@ -1,5 +1,6 @@
 """When replay may go on: the services it waits for are live, the router is there, and every
-consumer has acknowledged what a tick or the end of stream owes (flow control, DESIGN §3)."""
+consumer has acknowledged what a tick or the end of stream owes (flow control, DESIGN §3); and
+when it may end: every awaited service has reported done after the last end of stream."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from bintrack.keys import ParsedKey
 from bintrack.live.replay_schedule import Consumers, Pacer, Publish
 
 PROGRESS_INTERVAL = 5.0  # s of wall clock between "waiting for" lines
+SAY_AGAIN = 2.0  # s of wall clock between two repeats of the last end of stream while a service owes done
 REPLAY = "replay"
 
 log = logging.getLogger("bintrack")
@@ -33,6 +35,8 @@ class ReplayGate:
         self.stopping = stopping
         self.alive: set[tuple[str, str]] = set()
         self.consumers = Consumers()
+        self.done: dict[tuple[str, str], float] = {}  # the end of stream (s) each consumer reported done
+        self.arrivals = 0  # instances of awaited services that became live
         self.last_tick: float | None = None  # the last tick published (s)
         self.pacer: Pacer | None = None
         self.pauses = 0
@@ -48,20 +52,48 @@ class ReplayGate:
             self.alive.add(entry)
             if parsed.service != REPLAY:
                 self.consumers.appeared(entry, self.last_tick)
+            if parsed.service in self.awaited():
+                self.arrivals += 1
         else:
             self.alive.discard(entry)
             self.consumers.vanished(entry)
-        self.wanted_missing = []
-        for wanted in self.wanted:  # NAME, or NAME*N: N live instances of it
-            name, _, count = wanted.partition("*")
-            if sum(service == name for service, _ in self.alive) < (int(count) if count.isdigit() else 1):
-                self.wanted_missing.append(wanted)
+        self.wanted_missing = self._short_of(self.alive)
         self.changed.set()
+
+    def _short_of(self, instances: set[tuple[str, str]]) -> list[str]:
+        """The --wait-for services (NAME, or NAME*N: N instances) with too few of ``instances``."""
+        short = []
+        for wanted in self.wanted:
+            name, _, count = wanted.partition("*")
+            if sum(service == name for service, _ in instances) < (int(count) if count.isdigit() else 1):
+                short.append(wanted)
+        return short
 
     def reported(self, service: str, instance: str, t: float) -> None:
         """A consumer's progress report: it has handled the ticks up to ``t`` (s)."""
         self.consumers.reported((service, instance), t)
         self.changed.set()
+
+    def reported_done(self, service: str, instance: str, t: float) -> None:
+        """A consumer's done report: it has handled the end of stream at ``t`` (s)."""
+        self.done[(service, instance)] = t
+        self.changed.set()
+
+    def awaited(self) -> set[str]:
+        """The names of the --wait-for services."""
+        return {wanted.partition("*")[0] for wanted in self.wanted}
+
+    def owing_done(self, t: float) -> list[str]:
+        """The live instances of awaited services that have not reported done at ``t`` (s)."""
+        names = self.awaited()
+        return sorted(f"{s}/{i}" for s, i in self.alive if s in names and self.done.get((s, i)) != t)
+
+    def unfinished(self, t: float) -> list[str]:
+        """As :meth:`missing` after the end of stream at ``t`` (s): an instance that reported done
+        at ``t`` and left (a recorder ends with the stream) counts as there."""
+        over = {entry for entry, when in self.done.items() if when == t}
+        short = self._short_of(self.alive | over) if self.hold else []
+        return short + ["the router"] if self.router_lost() else short
 
     def missing(self) -> list[str]:
         """The --wait-for services with no live instance (none once started, without ``hold``),
@@ -89,7 +121,7 @@ class ReplayGate:
                 last_said = now
             self.changed.clear()
             try:
-                await asyncio.wait_for(self.changed.wait(), 1.0)
+                await asyncio.wait_for(self.changed.wait(), 1.0 if timeout is None else min(1.0, start + timeout - now))
             except TimeoutError:
                 pass
         return True
@@ -127,3 +159,32 @@ class ReplayGate:
         return await self.until(lambda: not self.consumers.owing(ack),
                                 lambda: f"progress >= {ack:g} s from "
                                 + ", ".join(f"{s}/{i}" for s, i in self.consumers.owing(ack)))
+
+    async def linger(self, t: float, say_again: Callable[[], None]) -> bool:
+        """After the last end of stream, at ``t`` (s): wait until every awaited service is live
+        (with ``hold``) and each live instance has reported done at ``t``. One that comes back
+        meanwhile (restarted after the end went out) is told again at once, and the others
+        every SAY_AGAIN s (a finished service then reports done again, for the restarted one
+        downstream). True when all are done, False if stopping."""
+        arrivals, said_at = self.arrivals, time.monotonic()
+        last_said = said_at
+
+        def owing() -> list[str]:
+            return self.unfinished(t) + self.owing_done(t)
+
+        while owing():
+            now = time.monotonic()
+            if self.arrivals != arrivals or now - said_at >= SAY_AGAIN:
+                if self.arrivals != arrivals:
+                    log.info("replay: end of stream at t=%g s said again, for %s (back after it went out)",
+                             t, ", ".join(owing()))
+                say_again()
+                arrivals, said_at = self.arrivals, now
+            if now - last_said >= PROGRESS_INTERVAL:
+                log.info("replay: waiting for done at t=%g s from %s", t, ", ".join(owing()))
+                last_said = now
+            if not await self.until(lambda: not owing() or self.arrivals != arrivals, lambda: ", ".join(owing()),
+                                    timeout=SAY_AGAIN):
+                if self.stopping.is_set():
+                    return False
+        return True

@@ -98,9 +98,11 @@ class ReplayPlayer:
             if not isinstance(action, Publish):
                 skip_ack = False  # the progress owed to the previous instance went to it
             if isinstance(action, End):
-                self.put(self.keys.eos(), encode(EndOfStream(t=action.t)), control)
+                eos = encode(EndOfStream(t=action.t, awaited=sorted(self.gate.awaited()) or None))
+                self.put(self.keys.eos(), eos, control)
                 log.info("replay: end of stream at t=%g s after %d samples", action.t, self.published)
                 if action.last:
+                    await self.gate.linger(action.t, lambda: self.put(self.keys.eos(), eos, control))
                     return
                 continue
             delay = pacer.delay(action.t, time.monotonic())

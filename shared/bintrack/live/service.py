@@ -188,8 +188,9 @@ class Service:
     def follow_end_of_stream(self, upstream: Iterable[str], finish: Callable[[float], None]) -> EndOfStream:
         """Once ``control/eos`` has arrived and every live instance of the ``upstream`` services
         has reported done, call ``finish(t)`` (flush, publish the last results) and report done.
-        A service with no live upstream finishes at EOS directly."""
-        return EndOfStream(upstream, finish, self.report_done).follow(self)
+        A service whose upstream never had a live instance finishes at EOS directly; an upstream
+        service gone at the end is waited for (:data:`~bintrack.live.end_of_stream.END_GRACE`)."""
+        return EndOfStream(self.name, upstream, finish, self.report_done).follow(self)
 
     # -- lifecycle -------------------------------------------------------------------------
 
