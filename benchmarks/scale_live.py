@@ -102,16 +102,18 @@ def cpu_seconds(pid: int) -> float | None:
     return (int(fields[11]) + int(fields[12])) / TICK
 
 
-def run_up(folder: Path, regions: int, speed: float, out: Path, timeout: float) -> tuple[dict[str, float], float, str] | None:
-    """``up`` on ``folder`` with its regions on hosts; CPU seconds per service instance, the
-    wall seconds of the run and up's log; None if it had not ended after ``timeout`` s (it is
-    then stopped, as Ctrl-C would)."""
+def run_up(folder: Path, regions: int, speed: float, out: Path, timeout: float,
+           lease: int | None = None) -> tuple[dict[str, float], float, str] | None:
+    """``up`` on ``folder`` with its regions on hosts (their links' lease ``lease`` ms, up's
+    default if None); CPU seconds per service instance, the wall seconds of the run and up's
+    log; None if it had not ended after ``timeout`` s (it is then stopped, as Ctrl-C would)."""
     record = out / "run.mcap"
     record.unlink(missing_ok=True)
     log_path = out / "up.log"
     argv = [sys.executable, "-m", "bintrack.cli", "up", str(folder), "--tracker", "mcmcda", "--regions",
             str(regions), "--hosts", "--speed", str(speed), "--record", str(record), "--exit-at-end", "--no-map",
-            "--listen", f"tcp/127.0.0.1:{free_port()}", "--progress-interval", "10"]
+            "--listen", f"tcp/127.0.0.1:{free_port()}", "--progress-interval", "10",
+            *(() if lease is None else ("--mesh-lease", str(lease)))]
     cpu: dict[int, tuple[str, float]] = {}
     with open(log_path, "w") as log:
         started = time.monotonic()
@@ -177,7 +179,7 @@ def measure(args: argparse.Namespace, grid: int, people: int) -> dict:
         folder = window(source, args.until, Path(tmp) / source.name)
         say(f"{grid * grid} sensors, {people} people, {args.regions} regions on hosts, --speed {args.speed}, "
             f"event time 0–{args.until:g} s …")
-        ran = run_up(folder, args.regions, args.speed, out, args.timeout)
+        ran = run_up(folder, args.regions, args.speed, out, args.timeout, args.mesh_lease)
     if ran is None:
         return {"sensors": grid * grid, "people": people, "stalled": args.timeout, "log": str(out / "up.log")}
     cpu, wall, text = ran
@@ -222,6 +224,8 @@ def main() -> int:
     parser.add_argument("--speed", type=float, default=1.0, help="replay speed (default 1)")
     parser.add_argument("--timeout", type=float, default=900.0,
                         help="stop a run that has not ended after this many s of wall time (default 900)")
+    parser.add_argument("--mesh-lease", type=int, default=None, metavar="MS",
+                        help="up's --mesh-lease: the lease of the links between sites (default: up's)")
     parser.add_argument("--seed", type=int, default=1, help="simulation seed (default 1)")
     parser.add_argument("--cache", default=str(REPO / "benchmarks" / ".cache"), help="where the fields are kept")
     parser.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "bintrack-scale-live",

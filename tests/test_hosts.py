@@ -83,7 +83,7 @@ def test_up_on_four_hosts_gives_the_offline_rows_and_removes_its_network(regions
     field, offline = regions_field
     recording = tmp_path / "run.mcap"
     up = Up(str(field), "--tracker", "mcmcda", "--regions", "4", "--hosts", "--speed", "0", "--record",
-            str(recording), "--exit-at-end")
+            str(recording), "--exit-at-end", "--mesh-lease", "3000")
     tag = hosts_tag(up)
     # each site's router and services run in its namespace; every address made is in 198.18.0.0/15
     up.wait_for(lambda line: "router r1c1: router " in line, "the last site's router in the mesh")
@@ -95,6 +95,7 @@ def test_up_on_four_hosts_gives_the_offline_rows_and_removes_its_network(regions
         in_site = subprocess.run(["ip", "netns", "pids", namespace], capture_output=True, text=True).stdout.split()
         commands = [children(up.proc.pid).get(int(pid), "") for pid in in_site]
         assert sum(f"--region {region}" in c or f"--name {region}" in c for c in commands) == 3, commands
+        assert any(f"--name {region}" in c and "transport/link/tx/lease:3000" in c for c in commands), commands
     assert up.finish() == 0, up.log[-4000:]
     assert made_by(tag) == []
     live = exported_tracks(recording, tmp_path)

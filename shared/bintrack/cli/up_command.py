@@ -35,7 +35,8 @@ from pathlib import Path
 
 import zenoh
 
-from bintrack.argtypes import add_alias, output_file, port_number, positive_float
+from bintrack.argtypes import add_alias, int_at_least, output_file, port_number, positive_float
+from bintrack.hosts.mesh_links import LEASE_MS
 from bintrack.live.checkpoint import memory_folder
 from bintrack.live.disk_full import EXIT_WRITE_FAILED, MODES as DISK_FULL_MODES
 from bintrack.live.parent_watch import PARENT_ENV
@@ -113,6 +114,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --regions: each region's site on a host of its own, a Linux network namespace "
                         "(its router, sensor agent and base station in it), linked to this machine by veth pairs "
                         "on 198.19.K.0/24 (needs root; everything made is removed at the end)")
+    parser.add_argument("--mesh-lease", type=int_at_least(100), default=None, metavar="MS",
+                        help="with --hosts: a link between two sites' routers silent this long is closed and logged "
+                        f"(default {LEASE_MS} ms); longer rides out routers too loaded to send keep-alives, at the "
+                        "cost of noticing a cut later")
     parser.add_argument("--progress-interval", type=positive_float, default=1.0, metavar="S",
                         help="seconds between progress lines (default: %(default)s)")
 
@@ -370,14 +375,15 @@ def planned_stack(args: argparse.Namespace, net: str, view_port: int | None,
                           bridge_args=bridge_args, on_disk_full=getattr(args, "on_disk_full", "stop"))
 
 
-def _site_options(network, listen: str) -> dict:
-    """region_stack_commands' options for sites on the hosts of ``network`` (none without)."""
+def _site_options(network, listen: str, lease_ms: int) -> dict:
+    """region_stack_commands' options for sites on the hosts of ``network`` (none without),
+    their links' lease ``lease_ms`` ms."""
     if network is None:
         return {}
     from bintrack.hosts.mesh_links import hub_endpoint, router_options, site_endpoints
 
     return {"routers": site_endpoints(network, listen), "hub": hub_endpoint(network, listen),
-            "router_args": router_options()}
+            "router_args": router_options(lease_ms)}
 
 
 def _map_socket(bind: str, port: int) -> socket.socket | None:
@@ -415,7 +421,14 @@ def _bridge_args(args: argparse.Namespace) -> tuple[str, ...]:
     return ("--sensor-table", str(Path(args.sensor_table).resolve()), *extra, *end, "--clock", args.clock)
 
 
+def _lease(args: argparse.Namespace) -> int:
+    """The lease of the links between sites, ms."""
+    return LEASE_MS if args.mesh_lease is None else args.mesh_lease
+
+
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "mesh_lease", None) is not None and not getattr(args, "hosts", False):
+        raise CommandError("--mesh-lease sets the lease of the links between the sites of --hosts; give --hosts")
     if not getattr(args, "hosts", False):
         return _run(args)
     from bintrack.hosts.netns import NetnsError, unavailable
@@ -500,7 +513,7 @@ def _run(args: argparse.Namespace, regions=None, network=None) -> int:
                                              tracker_args=tracker_arguments(options), view_port=view_port,
                                              view_bind=view_bind, clock_period=args.clock_period,
                                              foxglove_port=args.foxglove, on_disk_full=args.on_disk_full,
-                                             **_site_options(network, args.listen))
+                                             **_site_options(network, args.listen, _lease(args)))
         except ValueError as exc:
             if view_socket is not None:
                 view_socket.close()
@@ -523,7 +536,7 @@ def _run(args: argparse.Namespace, regions=None, network=None) -> int:
     elif network is not None:
         from bintrack.hosts.mesh_links import hub_endpoint, short_lease
 
-        config = short_lease(router_config([args.listen, hub_endpoint(network, args.listen)]))
+        config = short_lease(router_config([args.listen, hub_endpoint(network, args.listen)]), _lease(args))
     else:
         config = router_config([args.listen])
     stack_id = f"up{os.getpid()}"

@@ -10,19 +10,20 @@ import zenoh
 from bintrack.hosts.site_network import SiteNetwork
 
 LEASE_MS = 1000  # a link silent this long is closed; keep-alives every LEASE_MS / 4
-LEASE_CFG = f"transport/link/tx/lease:{LEASE_MS}"
+LEASE_KEY = "transport/link/tx/lease"
 
 
-def short_lease(config: zenoh.Config) -> zenoh.Config:
-    """``config`` with the mesh's lease (for the hub router ``up`` embeds)."""
-    key, _, value = LEASE_CFG.partition(":")
-    config.insert_json5(key, value)
+def short_lease(config: zenoh.Config, lease_ms: int = LEASE_MS) -> zenoh.Config:
+    """``config`` with the mesh's lease, ms (for the hub router ``up`` embeds)."""
+    config.insert_json5(LEASE_KEY, str(lease_ms))
     return config
 
 
-def router_options() -> tuple[str, ...]:
-    """The options that give a site router (``bintrack.services.router``) the mesh's lease."""
-    return ("--cfg", LEASE_CFG)
+def router_options(lease_ms: int = LEASE_MS) -> tuple[str, ...]:
+    """The options that give a site router (``bintrack.services.router``) the mesh's lease, ms.
+    A longer one rides out a router too busy to send its keep-alives (a loaded machine) at the
+    cost of noticing a cut link later."""
+    return ("--cfg", f"{LEASE_KEY}:{lease_ms}")
 
 
 def port_of(endpoint: str) -> str:
