@@ -106,7 +106,15 @@ def test_killed_after_the_end_of_stream_went_out(field, offline, tracker, victim
     recording = tmp_path / "run.mcap"
     up = Up(str(field), "--tracker", tracker, "--speed", "0", *FINE, "--record", str(recording), "--exit-at-end")
     up.wait_for(lambda line: "replay: end of stream at t=" in line, "the end of stream")
-    for pid in [up.service_pid(victim) for victim in victims]:  # they live on after done, until up stops
-        os.kill(pid, signal.SIGKILL)
+    # the recorder paused, the run cannot end before up has seen the kills and the restarts
+    recorder = up.service_pid("recorder")
+    os.kill(recorder, signal.SIGSTOP)
+    try:
+        for pid in [up.service_pid(victim) for victim in victims]:  # they live on after done, until up stops
+            os.kill(pid, signal.SIGKILL)
+        for victim in victims:
+            up.wait_for(lambda line: line.startswith(f"up: {victim} restarted"), f"{victim}'s restart logged")
+    finally:
+        os.kill(recorder, signal.SIGCONT)
     assert up.finish() == 0, up.log[-4000:]
     check_rows(up, exported_tracks(recording, tmp_path), offline(tracker))

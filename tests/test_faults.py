@@ -145,7 +145,15 @@ class Up:
         return pids[0]
 
     def finish(self) -> int:
-        code = self.proc.wait(timeout=HUNG)
+        """up's exit status; a run that has not ended within HUNG s is stopped (SIGTERM, as
+        Ctrl-C would) and fails with its log."""
+        try:
+            code = self.proc.wait(timeout=HUNG)
+        except subprocess.TimeoutExpired:
+            self.proc.terminate()
+            self.proc.wait(timeout=HUNG)
+            self.reader.join(timeout=HUNG)
+            raise AssertionError(f"up did not end within {HUNG} s:\n{self.log[-8000:]}") from None
         self.reader.join(timeout=HUNG)
         return code
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -131,7 +132,9 @@ def test_killing_the_middle_router_is_logged_by_the_others(chain):
 
 
 def middle_zid(router: RouterProcess) -> str:
-    return router.log.split(" (", 1)[1].split(")", 1)[0]
+    """The router's Zenoh id, from its "listening" line (a neighbour's "connected" line can come
+    before it)."""
+    return re.search(rf"router {router.name} \((\w+)\): listening", router.log).group(1)
 
 
 def test_sigterm_ends_a_router_cleanly_and_its_neighbour_logs_it(chain):
