@@ -13,6 +13,7 @@ import os
 import select
 import signal
 import subprocess
+import tempfile
 import sys
 import threading
 from pathlib import Path
@@ -153,7 +154,10 @@ class Up:
             self.proc.terminate()
             self.proc.wait(timeout=HUNG)
             self.reader.join(timeout=HUNG)
-            raise AssertionError(f"up did not end within {HUNG} s:\n{self.log[-8000:]}") from None
+            kept = Path(tempfile.gettempdir()) / f"bintrack-up-hung-{self.proc.pid}.log"
+            kept.write_text(self.log)
+            raise AssertionError(f"up did not end within {HUNG} s (its whole log: {kept}):\n"
+                                 f"{self.log[-8000:]}") from None
         self.reader.join(timeout=HUNG)
         return code
 

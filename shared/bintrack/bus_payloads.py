@@ -4,6 +4,8 @@ and end of stream."""
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 from pydantic import Field, NonNegativeInt, model_serializer
 
 from bintrack.message_base import FrozenModel, Message, Seconds
@@ -133,9 +135,24 @@ class TruthSample(Message):
     y: float = Field(description="position, deployment units")
 
 
-class Clock(Message):
+class _AddedLater(Message):
+    """A message with an optional field ``added_later``, left out when absent: its bytes and
+    JSON stay what they were before the field was added."""
+
+    added_later: ClassVar[str]
+
+    @model_serializer(mode="wrap")
+    def _later_field_only_when_given(self, handler):
+        data = handler(self)
+        if getattr(self, self.added_later) is None:
+            data.pop(self.added_later, None)
+        return data
+
+
+class Clock(_AddedLater):
     """Event time advances even when no sensor reports. Also a service's progress report."""
 
+    added_later = "sent_to"
     t: Seconds
     sent: int | None = Field(None, ge=0, description="what the sender has sent so far: in replay's (or the MQTT "
                              "bridge's) tick its raw samples; in a progress report a sensor agent's transitions, a "
@@ -148,28 +165,13 @@ class Clock(Message):
         "transitions of the sensors the region's base station takes (border band included). A receiver that "
         "subscribes to its region's keys only holds a report until it has that many (DESIGN §11)")
 
-    @model_serializer(mode="wrap")
-    def _counts_only_when_given(self, handler):
-        """``sent_to`` is left out when absent, as before it was added (JSON exports unchanged)."""
-        data = handler(self)
-        if self.sent_to is None:
-            data.pop("sent_to", None)
-        return data
 
-
-class EndOfStream(Message):
+class EndOfStream(_AddedLater):
     """The replay has ended: flush and emit final results. Also a service's done report."""
 
+    added_later = "awaited"
     t: Seconds
     awaited: list[str] | None = Field(
         None, description="in replay's end of stream: the services it waits for (its --wait-for), each of whose "
         "instances reports done. A service waits for those upstream of it to be live and done, also one it has not "
         "seen live (it restarted after the end went out)")
-
-    @model_serializer(mode="wrap")
-    def _awaited_only_when_given(self, handler):
-        """``awaited`` is left out when absent, as before it was added (done reports unchanged)."""
-        data = handler(self)
-        if self.awaited is None:
-            data.pop("awaited", None)
-        return data

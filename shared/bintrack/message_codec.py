@@ -96,14 +96,13 @@ def decode_view(cls: type[Message], payload: bytes | bytearray | memoryview):
 # dict is what model_dump(mode="json") gives (same keys, order and values), so the hot path
 # packs it directly.
 _FLAT = frozenset({RawSample, Transition, Clock, EndOfStream, LocalEstimate, TruthSample})
-_ADDED_LATER = {Clock: "sent_to", EndOfStream: "awaited"}  # optional fields left out when absent
 
 
 def encode(message: BaseModel) -> bytes:
     """msgpack bytes of ``message`` with field names as keys (aliases where a field has one)."""
     if type(message) in _FLAT:
         fields = message.__dict__
-        later = _ADDED_LATER.get(type(message))
+        later = getattr(message, "added_later", None)
         if later is not None and fields[later] is None:  # absent: the bytes as before it was added
             fields = {name: value for name, value in fields.items() if name != later}
         return msgpack.packb(fields, use_bin_type=True)
