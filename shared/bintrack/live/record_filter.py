@@ -18,9 +18,10 @@ from bintrack.message_codec import MessageError, decode_view, is_resent
 # carry their seq, and remembering them per sensor would cost memory that grows for long)
 RESULTS = frozenset({"estimate", "fusion_reports", "tracks", "laser_objects", "motion_velocity", "region_reports",
                      "region_tracks"})
-# replay says its end of stream again until every awaited service has reported done, and a
-# finished service reports done again each time: each recorded once
-REPEATED = frozenset({"eos", "done"})
+# replay says its end of stream again until every awaited service has reported done (and a
+# finished service reports done again each time), and its last tick while an acknowledgement
+# is overdue: each recorded once
+REPEATED = frozenset({"eos", "done", "clock"})
 DEDUPE_AFTER_RETURN = 1024  # result messages checked for duplicates after a service came back
 RECENT_PER_KEY = 64  # payloads remembered per key of RESULTS, to record a message sent again only once
 PARSED_KEYS = 65536  # distinct keys whose parse is remembered (a bound against key floods)

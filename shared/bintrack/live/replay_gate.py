@@ -39,6 +39,7 @@ class ReplayGate:
         self.arrivals = 0  # instances of awaited services that became live
         self.last_tick: float | None = None  # the last tick published (s)
         self.pacer: Pacer | None = None
+        self.tick_again: Callable[[], None] | None = None  # puts the last tick again (set by the player)
         self.pauses = 0
         self.changed = asyncio.Event()
 
@@ -156,9 +157,27 @@ class ReplayGate:
                 return True
 
     async def acknowledged(self, ack: float) -> bool:
-        return await self.until(lambda: not self.consumers.owing(ack),
-                                lambda: f"progress >= {ack:g} s from "
-                                + ", ".join(f"{s}/{i}" for s, i in self.consumers.owing(ack)))
+        """Wait until every consumer has acknowledged the tick at ``ack`` (s); False if stopping.
+        While one is overdue (SAY_AGAIN s), the last tick is said again (``tick_again``): a
+        consumer whose router was cut may have lost the ticks after its last acknowledgement, and
+        it acknowledges them all with a later one (a tick it has is a no-op)."""
+        said_at = last_said = time.monotonic()
+
+        def owing() -> str:
+            return ", ".join(f"{s}/{i}" for s, i in self.consumers.owing(ack))
+
+        while True:
+            if await self.until(lambda: not self.consumers.owing(ack), owing, timeout=SAY_AGAIN):
+                return True
+            if self.stopping.is_set():
+                return False
+            now = time.monotonic()
+            if now - last_said >= PROGRESS_INTERVAL:
+                log.info("replay: waiting for progress >= %g s from %s", ack, owing())
+                last_said = now
+            if self.tick_again is not None and now - said_at >= SAY_AGAIN:
+                self.tick_again()
+                said_at = now
 
     async def linger(self, t: float, say_again: Callable[[], None]) -> bool:
         """After the last end of stream, at ``t`` (s): wait until every awaited service is live

@@ -115,8 +115,9 @@ class ReplayPlayer:
                 break
             if isinstance(action, Tick):
                 again = None
-                tick = Clock(t=action.t, sent=self.source.raw_published, sent_to=self.source.counts())
-                self.put(self.keys.clock(), encode(tick), control)
+                tick = encode(Clock(t=action.t, sent=self.source.raw_published, sent_to=self.source.counts()))
+                self.put(self.keys.clock(), tick, control)
+                self.gate.tick_again = lambda payload=tick: self.put(self.keys.clock(), payload, control)
                 self._ticked(action.t)
                 if time.monotonic() - yielded_at >= YIELD_EVERY:
                     await asyncio.sleep(0)  # let signals and progress reports in
