@@ -13,7 +13,7 @@ from bintrack.keys import ParsedKey
 from bintrack.live.replay_schedule import Consumers, Pacer, Publish
 
 PROGRESS_INTERVAL = 5.0  # s of wall clock between "waiting for" lines
-SAY_AGAIN = 2.0  # s of wall clock between two repeats of the last end of stream while a service owes done
+SAY_AGAIN = 2.0  # s of wall clock between two repeats of the last tick (or end of stream) while one is owed
 REPLAY = "replay"
 
 log = logging.getLogger("bintrack")
@@ -107,10 +107,11 @@ class ReplayGate:
         return not self.missing()
 
     async def until(self, condition: Callable[[], bool], waiting_for: Callable[[], str],
-                    timeout: float | None = None) -> bool:
+                    timeout: float | None = None, repeat: Callable[[], None] | None = None) -> bool:
         """Wait until ``condition()`` holds (True), replay stops or ``timeout`` s pass (False);
-        says what it waits for every few seconds."""
-        start = last_said = time.monotonic()
+        says what it waits for every few seconds, and calls ``repeat()`` every SAY_AGAIN s."""
+        start = last_said = said_at = time.monotonic()
+        wake = 1.0 if repeat is None else min(1.0, SAY_AGAIN)
         while not condition():
             if self.stopping.is_set():
                 return False
@@ -120,9 +121,12 @@ class ReplayGate:
             if now - last_said >= PROGRESS_INTERVAL:
                 log.info("replay: waiting for %s", waiting_for())
                 last_said = now
+            if repeat is not None and now - said_at >= SAY_AGAIN:
+                repeat()
+                said_at = now
             self.changed.clear()
             try:
-                await asyncio.wait_for(self.changed.wait(), 1.0 if timeout is None else min(1.0, start + timeout - now))
+                await asyncio.wait_for(self.changed.wait(), wake if timeout is None else min(wake, start + timeout - now))
             except TimeoutError:
                 pass
         return True
@@ -158,26 +162,12 @@ class ReplayGate:
 
     async def acknowledged(self, ack: float) -> bool:
         """Wait until every consumer has acknowledged the tick at ``ack`` (s); False if stopping.
-        While one is overdue (SAY_AGAIN s), the last tick is said again (``tick_again``): a
+        While one is overdue, the last tick is said again every SAY_AGAIN s (``tick_again``): a
         consumer whose router was cut may have lost the ticks after its last acknowledgement, and
         it acknowledges them all with a later one (a tick it has is a no-op)."""
-        said_at = last_said = time.monotonic()
-
-        def owing() -> str:
-            return ", ".join(f"{s}/{i}" for s, i in self.consumers.owing(ack))
-
-        while True:
-            if await self.until(lambda: not self.consumers.owing(ack), owing, timeout=SAY_AGAIN):
-                return True
-            if self.stopping.is_set():
-                return False
-            now = time.monotonic()
-            if now - last_said >= PROGRESS_INTERVAL:
-                log.info("replay: waiting for progress >= %g s from %s", ack, owing())
-                last_said = now
-            if self.tick_again is not None and now - said_at >= SAY_AGAIN:
-                self.tick_again()
-                said_at = now
+        return await self.until(lambda: not self.consumers.owing(ack),
+                                lambda: f"progress >= {ack:g} s from "
+                                + ", ".join(f"{s}/{i}" for s, i in self.consumers.owing(ack)), repeat=self.tick_again)
 
     async def linger(self, t: float, say_again: Callable[[], None]) -> bool:
         """After the last end of stream, at ``t`` (s): wait until every awaited service is live
@@ -185,25 +175,16 @@ class ReplayGate:
         meanwhile (restarted after the end went out) is told again at once, and the others
         every SAY_AGAIN s (a finished service then reports done again, for the restarted one
         downstream). True when all are done, False if stopping."""
-        arrivals, said_at = self.arrivals, time.monotonic()
-        last_said = said_at
 
         def owing() -> list[str]:
             return self.unfinished(t) + self.owing_done(t)
 
-        while owing():
-            now = time.monotonic()
-            if self.arrivals != arrivals or now - said_at >= SAY_AGAIN:
-                if self.arrivals != arrivals:
-                    log.info("replay: end of stream at t=%g s said again, for %s (back after it went out)",
-                             t, ", ".join(owing()))
-                say_again()
-                arrivals, said_at = self.arrivals, now
-            if now - last_said >= PROGRESS_INTERVAL:
-                log.info("replay: waiting for done at t=%g s from %s", t, ", ".join(owing()))
-                last_said = now
-            if not await self.until(lambda: not owing() or self.arrivals != arrivals, lambda: ", ".join(owing()),
-                                    timeout=SAY_AGAIN):
-                if self.stopping.is_set():
-                    return False
-        return True
+        while True:
+            arrivals = self.arrivals
+            if not await self.until(lambda: not owing() or self.arrivals != arrivals,
+                                    lambda: f"done at t={t:g} s from " + ", ".join(owing()), repeat=say_again):
+                return False
+            if not owing():
+                return True
+            log.info("replay: end of stream at t=%g s said again, for %s (back after it went out)", t, ", ".join(owing()))
+            say_again()
