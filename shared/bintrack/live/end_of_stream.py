@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from collections.abc import Callable, Iterable
 
 from bintrack.bus_payloads import EndOfStream as EndOfStreamMessage
@@ -31,6 +32,7 @@ class UpstreamDone:
         self.done: dict[tuple[str, str], float] = {}
         self.seen: set[str] = set()  # the watched services that had a live instance
         self.given_up: set[str] = set()  # gone ones no longer waited for
+        self.gone_since: float | None = None  # wall clock (s) the wait for a gone one started
 
     def on_presence(self, parsed: ParsedKey, present: bool) -> None:
         """A token of ``alive/<service>/<id>`` declared or withdrawn (a Presence listener)."""
@@ -58,6 +60,27 @@ class UpstreamDone:
     def give_up(self, services: Iterable[str]) -> None:
         """Stop waiting for these gone services (until one of their instances is back)."""
         self.given_up.update(services)
+
+    def wait_for_gone(self, name: str, eos: float, now: float) -> float | None:
+        """The wait for the services gone at the end of stream at ``eos`` (s), seen from service
+        ``name``: logs when it starts, and END_GRACE s of wall clock (``now``, monotonic s) later
+        gives up on them with a line naming them. Returns the seconds left, None when none is gone."""
+        gone = self.gone()
+        if not gone:
+            self.gone_since = None
+            return None
+        if self.gone_since is None:
+            self.gone_since = now
+            log.warning("%s: end of stream at t=%g s while %s has no live instance; waiting up to %g s for it to "
+                        "come back and report done", name, eos, ", ".join(gone), END_GRACE)
+        left = self.gone_since + END_GRACE - now
+        if left > 0:
+            return left
+        log.warning("%s: %s did not come back within %g s of the end of stream; finishing without its done "
+                    "report (what it had not published is missing)", name, ", ".join(gone), END_GRACE)
+        self.give_up(gone)
+        self.gone_since = None
+        return None
 
     @property
     def complete(self) -> bool:
@@ -128,11 +151,9 @@ class EndOfStream:
         Called on the service's event loop."""
         if self.eos is None or self.finished:
             return
-        gone = self.upstream.gone()
-        if gone and self.grace is None:
-            log.warning("%s: end of stream at t=%g s while %s has no live instance; waiting up to %g s for it to "
-                        "come back and report done", self.name, self.eos, ", ".join(gone), END_GRACE)
-            self.grace = asyncio.get_running_loop().call_later(END_GRACE, self.give_up)
+        left = self.upstream.wait_for_gone(self.name, self.eos, time.monotonic())
+        if left is not None and self.grace is None:
+            self.grace = asyncio.get_running_loop().call_later(left, self._grace_over)
         if self.upstream.complete:
             self.finished = True
             if self.finish(self.eos) is False:
@@ -140,11 +161,6 @@ class EndOfStream:
                 return
             self.report_done(self.eos)
 
-    def give_up(self) -> None:
-        """END_GRACE s after the end of stream found an upstream service gone: finish without it."""
-        gone = self.upstream.gone()
-        if gone and not self.finished:
-            log.warning("%s: %s did not come back within %g s of the end of stream; finishing without its done "
-                        "report (what it had not published is missing)", self.name, ", ".join(gone), END_GRACE)
-            self.upstream.give_up(gone)
-            self.check()
+    def _grace_over(self) -> None:
+        self.grace = None
+        self.check()

@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable, Iterable
 
 from bintrack.keys import ParsedKey
-from bintrack.live.end_of_stream import END_GRACE, UpstreamDone
+from bintrack.live.end_of_stream import UpstreamDone
 from bintrack.live.recording_sink import RecordingSink
 from bintrack.live.track_ledger import TrackRefill
 
@@ -53,19 +53,8 @@ class RecordingEnd:
         """Until stopped or (``until_eos``) the end of stream is recorded. An upstream service
         gone at the end of stream is waited for up to END_GRACE s."""
         last_said = time.monotonic()
-        gone_since: float | None = None
         while not self.stopping.is_set():
-            gone = self.upstream.gone() if self.eos is not None else []
-            if gone and gone_since is None:
-                gone_since = time.monotonic()
-                log.warning("recorder: end of stream at t=%g s while %s has no live instance; waiting up to %g s for "
-                            "it to come back and report done", self.eos, ", ".join(gone), END_GRACE)
-            elif gone and time.monotonic() - gone_since >= END_GRACE:
-                log.warning("recorder: %s did not come back within %g s of the end of stream; finishing without its "
-                            "done report (what it had not published is missing)", ", ".join(gone), END_GRACE)
-                self.upstream.give_up(gone)
-            elif not gone:
-                gone_since = None
+            left = None if self.eos is None else self.upstream.wait_for_gone("recorder", self.eos, time.monotonic())
             if self.eos is not None and self.upstream.complete:
                 await self.refill.finish()
                 eos, self.eos = self.eos, None
@@ -86,7 +75,7 @@ class RecordingEnd:
                 await self.sink.retry_while_paused(self.stopping)
                 continue
             try:
-                await asyncio.wait_for(self.changed.wait(), WAIT_LOG_INTERVAL)
+                await asyncio.wait_for(self.changed.wait(), min(left or WAIT_LOG_INTERVAL, WAIT_LOG_INTERVAL))
             except TimeoutError:
                 if self.eos is not None and time.monotonic() - last_said >= WAIT_LOG_INTERVAL:
                     owing = ", ".join([f"{s}/{i}" for s, i in self.upstream.owing()] + self.upstream.gone())
