@@ -16,8 +16,12 @@ import bintrack.live.replay_gate as replay_gate
 from bintrack.bus_payloads import EndOfStream as EndOfStreamMessage
 from bintrack.keys import Keys, parse_key
 from bintrack.live.end_of_stream import EndOfStream, UpstreamDone
+from bintrack.live.disk_full import DiskFull
 from bintrack.live.record_filter import RecordFilter
+from bintrack.live.recording_end import RecordingEnd
+from bintrack.live.recording_sink import RecordingSink
 from bintrack.live.replay_gate import ReplayGate
+from bintrack.live.track_ledger import TrackRefill
 from bintrack.message_codec import encode
 
 KEYS = Keys("net")
@@ -83,6 +87,31 @@ def test_the_end_waits_for_an_upstream_service_named_by_replay_and_gives_up_afte
     with caplog.at_level(logging.WARNING, "bintrack"):
         run(scenario())
     assert "recorder: end of stream at t=7 s while basestation has no live instance; waiting up to 0.05 s" in caplog.text
+    assert "recorder: basestation did not come back within 0.05 s of the end of stream; finishing" in caplog.text
+
+
+def test_the_recorder_waits_for_an_upstream_service_gone_at_the_end_and_gives_up_after_the_grace(monkeypatch, caplog):
+    monkeypatch.setattr(end_of_stream, "END_GRACE", 0.05)
+    reported = []
+
+    def unexpected(key, reason):
+        pytest.fail(f"{key}: {reason}")
+
+    async def scenario():
+        stopping = asyncio.Event()
+        sink = RecordingSink(RecordFilter(unexpected), DiskFull("stop", lambda status: pytest.fail("gave up")),
+                             unexpected, lambda t: None, lambda part: None)
+        refill = TrackRefill(KEYS.tracks(), lambda selector, timeout: [], lambda *a: False, unexpected, lambda: False)
+        end = RecordingEnd(["basestation"], sink, refill, reported.append, True, stopping)
+        end.on_presence(alive("basestation", "b"), True)
+        end.on_presence(alive("basestation", "b"), False)  # killed just before the end
+        end.on_eos(5.0)
+        await asyncio.wait_for(end.run(), 5)  # the same wait as every other service's, not its 5 s poll
+
+    with caplog.at_level(logging.WARNING, "bintrack"):
+        run(scenario())
+    assert reported == [5.0]
+    assert "recorder: end of stream at t=5 s while basestation has no live instance; waiting up to 0.05 s" in caplog.text
     assert "recorder: basestation did not come back within 0.05 s of the end of stream; finishing" in caplog.text
 
 
