@@ -8,17 +8,25 @@ after the first n events of its dataset, run as ``bintrack track`` runs them —
 arc tracker's estimates (``n_mc`` 100) on a small simulated grid kept beside it (``bintrack
 simulate darpa-grid --grid 4 --people 2 --duration 60 --seed 3``), and adaptive-basis on the
 shipped laser testbed.
+
+The pickled state's floats were computed with the numpy of that day; the same state computed
+again with another numpy can differ in the last bits (seen: 1e-14 m in mcmcda, 4e-8 in
+adaptive-basis's fitted lines), so the continuation is held to the same messages, identities and
+counts exactly, and to 1e-6 in every float.
 """
 
 from __future__ import annotations
 
 import gzip
+import math
 import os
 
+import msgpack
 import pytest
 
 from bintrack.formats import open_dataset
 from bintrack.live.checkpoint import load_checkpoint
+from bintrack.message_codec import encode
 from bintrack.pipeline import TrackerDriver
 from bintrack.trackers import TrackerOptions, make_tracker
 from bintrack.trackers.laser.phase3_frame import Frame
@@ -42,6 +50,24 @@ def _feed(detector, driver, events) -> list:
             out += driver.advance(transition.t)
             driver.push(transition)
     return out
+
+
+def _fields(messages: list) -> list:
+    """Every field of ``messages`` in order, as the bus carries them (nested lists flattened)."""
+    def walk(value):
+        if isinstance(value, dict):
+            return [("key", k) for k in value] + [v for k in value for v in walk(value[k])]
+        if isinstance(value, (list, tuple)):
+            return [("length", len(value))] + [v for item in value for v in walk(item)]
+        return [value]
+    return [v for m in messages for v in walk(msgpack.unpackb(encode(m)))]
+
+
+def _same(resumed: list, expected: list) -> bool:
+    a, b = _fields(resumed), _fields(expected)
+    return len(a) == len(b) and all(
+        math.isclose(x, y, rel_tol=1e-6, abs_tol=1e-6) if isinstance(x, float) and isinstance(y, float) else x == y
+        for x, y in zip(a, b))
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +95,8 @@ def test_a_checkpoint_of_the_version_before_the_moves_resumes_exactly(old_checkp
     _feed(detector, driver, events[:n])
     expected = _feed(detector, driver, events[n:]) + driver.finish()
     resumed = _feed(saved["detector"], saved["driver"], events[n:]) + saved["driver"].finish()
-    assert len(expected) > 5 and resumed == expected
+    assert len(expected) > 5 and [type(m) for m in resumed] == [type(m) for m in expected]
+    assert _same(resumed, expected), (resumed, expected)
 
 
 def test_the_old_classes_are_found_at_their_new_homes(old_checkpoint):
