@@ -3,8 +3,10 @@
 ``python -m bintrack.services.mqtt_bridge mqtt://HOST:PORT --sensor-table FILE [options]`` serves
 ``deployment`` (the table's), subscribes with QoS 1 in a persistent session and wires
 :class:`bintrack.mqtt.bridge_core.BridgeCore`: raw samples on ``raw/<sensor>`` before each
-``clock`` tick, a tick once the consumers acknowledged the one ``--max-ahead`` before it (as
-replay), ``control/eos`` after a message on ``--end-topic``. With ``--state-dir`` it checkpoints
+``clock`` tick, a tick once the consumers acknowledged the one ``--max-ahead`` before it (at
+replay's gate, :class:`~bintrack.live.replay_gate.ReplayGate`: the last tick said again while an
+acknowledgement is overdue), ``control/eos`` after a message on ``--end-topic``, said again until
+every awaited service has reported done. With ``--state-dir`` it checkpoints
 the core and journals each message before paho acknowledges it: a restart loses nothing.
 """
 
@@ -17,19 +19,20 @@ import math
 import secrets
 import threading
 import time
+from collections import deque
 from pathlib import Path
 
 import zenoh
 
 from bintrack.errors import CommandError
-from bintrack.keys import parse_key
 from bintrack.live.checkpoint import BridgeCheckpoint
 from bintrack.live.service import Service, log, service_main
 from bintrack.live.control_guard import control_attachment
+from bintrack.live.replay_gate import ReplayGate
 from bintrack.bus_payloads import Clock, EndOfStream
 from bintrack.message_codec import RESENT, encode, encode_raw_sample
 from bintrack.mqtt.bridge_arguments import build_parser
-from bintrack.mqtt.bridge_core import BridgeCore, ConsumerGate, End, FaultLines, RecentSamples
+from bintrack.mqtt.bridge_core import BridgeCore, End, FaultLines, RecentSamples
 from bintrack.mqtt.broker_options import BrokerConfigError, broker_options
 from bintrack.mqtt.message_journal import MessageJournal, take_journal
 from bintrack.mqtt.mqtt_client import Subscription
@@ -50,14 +53,17 @@ class MqttBridge(Service):
         self.core = BridgeCore(self.table, period=args.clock_period, lateness=args.lateness, clock=args.clock,
                                max_rate=args.max_rate, end_topic=args.end_topic)
         self.raw_keys = {s.id: self.keys.raw(s.id) for s in self.table.sensors}
-        self.gate = ConsumerGate(self.name, args.wait_for, args.max_ahead)
+        wanted = [n.strip() for item in args.wait_for for n in item.split(",") if n.strip()]
+        self.gate = ReplayGate(wanted, lambda: False, self.stopping, source=self.name)
+        self.sent: deque[float] = deque(maxlen=args.max_ahead)  # the last ticks out (s)
         self.recent, self.lines = RecentSamples(), FaultLines()
         self.lock = threading.Lock()  # the core and the journal, between paho's thread and the loop
         self.journal, self.seq, self.resend_before = None, 0, None
         self.changed, self.ended = asyncio.Event(), False
 
     def listen_key(self) -> str:
-        return self.keys.progress()
+        """The services' progress and done reports (not the traffic it causes)."""
+        return f"{self.keys.prefix}/control/*/*/*"
 
     async def setup(self) -> None:
         checkpoints, saved = self.checkpoints, self.checkpoints.load(BridgeCheckpoint)
@@ -74,8 +80,7 @@ class MqttBridge(Service):
         payload, run = encode(self.table.deployment()), checkpoints.run_id.encode()
         self.serve(self.keys.deployment(), lambda q: q.reply(self.keys.deployment(), payload, attachment=run))
         self.serve(self.keys.recent(), self._on_recent)
-        self.follow_presence(self._on_presence)
-        self.subscribe(self.keys.progress(), self._on_progress)
+        self.gate.follow(self)
 
     def _on_recent(self, query) -> None:
         try:
@@ -86,16 +91,9 @@ class MqttBridge(Service):
             query.reply(self.keys.recent(), payload)
         query.reply(self.keys.recent(), encode(Clock(t=self.core.last_tick or 0.0)))
 
-    def _on_presence(self, parsed, present: bool) -> None:
-        if parsed.kind == "alive":
-            self.gate.on_alive(parsed.service, parsed.instance, present)
-            self.changed.set()
-
-    def _on_progress(self, sample) -> None:
-        if (message := self.read(Clock, sample)) is not None:
-            parsed = parse_key(str(sample.key_expr))
-            self.gate.on_progress(parsed.service, parsed.instance, message.t)
-            self.changed.set()
+    def stop(self) -> None:
+        super().stop()
+        self.gate.changed.set()
 
     def _on_message(self, topic: str, payload: bytes, retained: bool) -> None:
         """paho's thread: journal the message (before paho acknowledges it), then take it."""
@@ -144,7 +142,7 @@ class MqttBridge(Service):
         try:
             while not self.stopping.is_set() and not self.ended:
                 await self._until(lambda: self.ended, TICK_WALL)
-                while not self.ended and self._tick(control):
+                while not self.ended and await self.gate.window_open(self.sent) and self._tick(control):
                     await asyncio.sleep(0)
             if self.ended and not self.stopping.is_set():
                 await self._finish(control)
@@ -153,36 +151,40 @@ class MqttBridge(Service):
             log.info("mqtt_bridge: %s; connection lost %d times", self.core.summary(), mqtt.losses)
 
     def _tick(self, control: bytes) -> bool:
-        """Publish the next due tick after its samples; False if none is due or may go yet."""
-        if not self.gate.ready():
-            return False
+        """Publish the next due tick after its samples (once :meth:`_pace` let it); False if none is due."""
         with self.lock:
             due = self.core.next_tick(time.time_ns() // 1000)
             if due is None:
                 return False
             tick, samples = due
-            before = self.gate.sent[-1] if self.gate.sent else -math.inf
+            before = self.sent[-1] if self.sent else -math.inf
             for s in samples:
                 key, payload = self.raw_keys[s.sensor], encode_raw_sample(s.t, s.sensor, s.value)
                 again = self.resend_before is not None and s.t <= self.resend_before
                 self._put(key, payload, RESENT if again else None)
                 self.recent.add(before, key, payload)
-            self._put(self.keys.clock(), encode(Clock(t=tick, sent=self.core.released)), control)
-            self.gate.sent.append(tick)
-            self.recent.forget_before(self.gate.sent[0])
+            clock = encode(Clock(t=tick, sent=self.core.released))
+            self._put(self.keys.clock(), clock, control)
+            self.sent.append(tick)
+            self.gate.last_tick = tick
+            self.gate.tick_again = lambda: self._put(self.keys.clock(), clock, control)
+            self.recent.forget_before(self.sent[0])
             if self.journal is not None:
                 self.journal.checkpoint(lambda: self.checkpoints.save(BridgeCheckpoint(self.core.snapshot())))
         return True
 
     async def _finish(self, control: bytes) -> None:
-        """End of stream: the ticks up to the final one, then EOS once every consumer has it."""
+        """End of stream: the ticks up to the final one, then EOS once every consumer has it, said
+        again until each awaited service has reported done (as replay)."""
         with self.lock:
             final, t_end = self.core.end()
-        while await self._until(self.gate.ready) and self._tick(control):
+        while await self.gate.window_open(self.sent) and self._tick(control):
             await asyncio.sleep(0)
-        if await self._until(lambda: self.gate.acknowledged(final)):
-            self._put(self.keys.eos(), encode(EndOfStream(t=t_end)), control)
+        if await self.gate.acknowledged(final) and await self.gate.window_open(self.sent):
+            eos = encode(EndOfStream(t=t_end, awaited=sorted(self.gate.awaited()) or None))
+            self._put(self.keys.eos(), eos, control)
             log.info("mqtt_bridge: end of stream at t=%g s after %d samples", t_end, self.core.released)
+            await self.gate.linger(t_end, lambda: self._put(self.keys.eos(), eos, control))
 
     def _put(self, key: str, payload: bytes, attachment: bytes | None) -> None:
         self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK, attachment=attachment)

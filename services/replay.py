@@ -27,7 +27,7 @@ import zenoh
 from bintrack.argtypes import int_at_least, non_negative_float, positive_float
 from bintrack.errors import CommandError
 from bintrack.formats import FormatError
-from bintrack.keys import Keys, parse_key
+from bintrack.keys import Keys
 from bintrack.live.control_guard import control_attachment
 from bintrack.live.replay_gate import ReplayGate
 from bintrack.live.checkpoint import ReplayCheckpoint
@@ -36,7 +36,6 @@ from bintrack.live.replay_schedule import MAX_GAP, TICK_FASTEST, TICK_WALL, defa
 from bintrack.live.replay_source import ReplaySource
 from bintrack.live.service import Service, service_main
 from bintrack.live.session_options import add_bus_arguments
-from bintrack.bus_payloads import Clock, EndOfStream
 from bintrack.message_codec import encode
 
 log = logging.getLogger("bintrack")
@@ -141,9 +140,7 @@ class Replay(Service):
         self.serve(self.keys.recent(), self._on_recent)  # complete from here on, even after a restart
         # the services already up come first (a get after subscribing could time out empty on a
         # loaded machine, and a restarted replay then waited for services that were up)
-        self.follow_presence(self.gate.on_presence)
-        self.subscribe(self.keys.progress(), self._on_progress)
-        self.subscribe(self.keys.done(), self._on_done)
+        self.gate.follow(self)
         try:  # the others fetch the deployment and start meanwhile; a bad row is one line, before "ready"
             await self.checked
         except ValueError as exc:  # FormatError
@@ -158,18 +155,6 @@ class Replay(Service):
             return
         for payload in self.source.recent_answer(after):
             query.reply(self.keys.recent(), payload)
-
-    def _on_progress(self, sample: zenoh.Sample) -> None:
-        message = self.read(Clock, sample)
-        if message is not None:
-            parsed = parse_key(str(sample.key_expr))
-            self.gate.reported(parsed.service, parsed.instance, message.t)
-
-    def _on_done(self, sample: zenoh.Sample) -> None:
-        message = self.decode(EndOfStream, sample)
-        if message is not None:
-            parsed = parse_key(str(sample.key_expr))
-            self.gate.reported_done(parsed.service, parsed.instance, message.t)
 
     def stop(self) -> None:
         super().stop()

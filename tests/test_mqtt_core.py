@@ -3,15 +3,20 @@ state and faults, broker options, and Zigbee2MQTT playback (no broker, no Zenoh)
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import pickle
+from collections import deque
 from pathlib import Path
 
 import pytest
 
+import bintrack.live.replay_gate as replay_gate
 from bintrack.formats import Event, open_dataset
-from bintrack.mqtt.bridge_core import BridgeCore, ConsumerGate, Fault, FaultLines, Retained, Sample
+from bintrack.keys import Keys, parse_key
+from bintrack.live.replay_gate import ReplayGate
+from bintrack.mqtt.bridge_core import BridgeCore, Fault, FaultLines, Retained, Sample
 from bintrack.mqtt.broker_options import BrokerConfigError, broker_options, parse_broker_url
 from bintrack.mqtt.payload_reader import PayloadError, PayloadReader
 from bintrack.mqtt.sensor_table import PayloadSpec, TableError, load_table, parse_instant, table_text
@@ -276,21 +281,36 @@ def test_a_snapshot_restores_the_same_core(table):
     assert [core.next_tick(0) for _ in range(3)] == [copy.next_tick(0) for _ in range(3)]
 
 
-def test_the_gate_waits_for_the_awaited_services_and_their_acknowledgements():
-    gate = ConsumerGate("mqtt_bridge", ["sensor_agent", "basestation*2"], max_ahead=2)
-    gate.on_alive("sensor_agent", "a", True)
-    gate.on_alive("basestation", "b1", True)
-    assert gate.missing() == ["basestation*2"] and not gate.ready()
-    gate.on_alive("basestation", "b2", True)
-    gate.on_alive("mqtt_bridge", "me", True)  # itself: not a consumer
-    assert gate.ready()
-    gate.sent.extend([0.0, 0.5])
-    assert not gate.ready()  # the tick two back is owed by the three consumers
-    for who in ("a", "b1", "b2"):
-        gate.on_progress("sensor_agent" if who == "a" else "basestation", who, 0.0)
-    assert gate.ready() and not gate.acknowledged(0.5)
-    gate.on_alive("basestation", "b2", False)
-    assert gate.missing() == ["basestation*2"]
+def test_the_bridge_paces_at_replays_gate_and_says_an_overdue_tick_again(monkeypatch):
+    """The bridge's flow control is replay's gate with the bridge as the source: it waits for
+    the awaited services, then for the tick --max-ahead back, saying the last tick again every
+    SAY_AGAIN s while it is overdue (a consumer that lost it acknowledges a later one)."""
+    monkeypatch.setattr(replay_gate, "SAY_AGAIN", 0.02)
+    keys = Keys("net")
+
+    async def scenario():
+        said = []
+        gate = ReplayGate(["sensor_agent", "basestation*2"], lambda: False, asyncio.Event(), source="mqtt_bridge")
+        gate.tick_again = lambda: said.append(gate.last_tick)
+        sent = deque([0.0, 0.5], maxlen=2)
+        for service, instance in [("sensor_agent", "a"), ("basestation", "b1"), ("mqtt_bridge", "me")]:
+            gate.on_presence(parse_key(keys.alive(service, instance)), True)
+        assert gate.missing() == ["basestation*2"]
+        waiting = asyncio.create_task(gate.window_open(sent))
+        await asyncio.sleep(0.05)
+        assert not waiting.done() and said == []  # a service short: no tick is owed yet
+        gate.on_presence(parse_key(keys.alive("basestation", "b2")), True)  # the bridge itself is no consumer
+        gate.last_tick = 0.5
+        while not said:  # the tick two back is owed by the three consumers: said again meanwhile
+            await asyncio.sleep(0.01)
+        for service, instance in [("sensor_agent", "a"), ("basestation", "b1")]:
+            gate.reported(service, instance, 0.0)
+        assert not waiting.done()
+        gate.reported("basestation", "b2", 0.5)
+        assert await asyncio.wait_for(waiting, 5)
+        assert set(said) == {0.5}
+
+    asyncio.run(asyncio.wait_for(scenario(), 10))
 
 
 # -- broker options ------------------------------------------------------------------------

@@ -1,15 +1,18 @@
-"""When replay may go on: the services it waits for are live, the router is there, and every
-consumer has acknowledged what a tick or the end of stream owes (flow control, DESIGN §3); and
-when it may end: every awaited service has reported done after the last end of stream."""
+"""When a live source (replay, or the MQTT bridge) may go on: the services it waits for are live,
+the router is there, and every consumer has acknowledged what a tick or the end of stream owes
+(flow control, DESIGN §3); and when it may end: every awaited service has reported done after
+the last end of stream."""
 
 from __future__ import annotations
 
 import asyncio
 import logging
 import time
+from collections import deque
 from collections.abc import Callable
 
-from bintrack.keys import ParsedKey
+from bintrack.bus_payloads import Clock, EndOfStream
+from bintrack.keys import ParsedKey, parse_key
 from bintrack.live.replay_schedule import Consumers, Pacer, Publish
 
 PROGRESS_INTERVAL = 5.0  # s of wall clock between "waiting for" lines
@@ -20,13 +23,15 @@ log = logging.getLogger("bintrack")
 
 
 class ReplayGate:
-    """Who replay waits for. ``wanted``: the ``--wait-for`` services (``NAME`` or ``NAME*N``, N
-    live instances); ``router_lost()`` whether the session has lost its router; ``stopping``
-    is set when replay stops; ``hold``: whether event time is held while one of them is gone
-    once they were all there (``started``), or only the start waits for them."""
+    """Who a live source waits for. ``wanted``: the ``--wait-for`` services (``NAME`` or
+    ``NAME*N``, N live instances); ``router_lost()`` whether the session has lost its router;
+    ``stopping`` is set when the source stops; ``hold``: whether event time is held while one of
+    them is gone once they were all there (``started``), or only the start waits for them;
+    ``source``: the source's service name (its own instances consume nothing; its log lines)."""
 
     def __init__(self, wanted: list[str], router_lost: Callable[[], bool], stopping: asyncio.Event,
-                 hold: bool = True):
+                 hold: bool = True, source: str = REPLAY):
+        self.source = source
         self.wanted = wanted
         self.hold = hold
         self.started = False
@@ -43,15 +48,36 @@ class ReplayGate:
         self.pauses = 0
         self.changed = asyncio.Event()
 
+    def follow(self, service) -> ReplayGate:
+        """Hear ``service``'s (a :class:`~bintrack.live.service.Service`) liveliness tokens and the
+        services' progress and done reports, a bad payload counted by ``service``; returns self."""
+
+        def on_progress(sample) -> None:
+            message = service.read(Clock, sample)
+            if message is not None:
+                parsed = parse_key(str(sample.key_expr))
+                self.reported(parsed.service, parsed.instance, message.t)
+
+        def on_done(sample) -> None:
+            message = service.decode(EndOfStream, sample)
+            if message is not None:
+                parsed = parse_key(str(sample.key_expr))
+                self.reported_done(parsed.service, parsed.instance, message.t)
+
+        service.follow_presence(self.on_presence)
+        service.subscribe(service.keys.progress(), on_progress)
+        service.subscribe(service.keys.done(), on_done)
+        return self
+
     def on_presence(self, parsed: ParsedKey, present: bool) -> None:
         """A service's token came or went (a Presence listener): every live service but a
-        replay consumes the clock and owes its acknowledgements."""
+        source of this kind consumes the clock and owes its acknowledgements."""
         if parsed.kind != "alive":
             return
         entry = (parsed.service, parsed.instance)
         if present:
             self.alive.add(entry)
-            if parsed.service != REPLAY:
+            if parsed.service != self.source:
                 self.consumers.appeared(entry, self.last_tick)
             if parsed.service in self.awaited():
                 self.arrivals += 1
@@ -119,7 +145,7 @@ class ReplayGate:
             if timeout is not None and now - start >= timeout:
                 return False
             if now - last_said >= PROGRESS_INTERVAL:
-                log.info("replay: waiting for %s", waiting_for())
+                log.info("%s: waiting for %s", self.source, waiting_for())
                 last_said = now
             if repeat is not None and now - said_at >= SAY_AGAIN:
                 repeat()
@@ -138,13 +164,13 @@ class ReplayGate:
             return True
         gone = ", ".join(self.missing())
         self.pauses += 1
-        log.warning("replay: %s gone; holding event time at t=%.3f s until it is back", gone, t)
+        log.warning("%s: %s gone; holding event time at t=%.3f s until it is back", self.source, gone, t)
         started = time.monotonic()
         if not await self.until(lambda: not self.missing(), lambda: "services " + ", ".join(self.missing())):
             return False
         held = time.monotonic() - started
         self.pacer.hold(held)
-        log.info("replay: %s back after %.1f s; resuming at t=%.3f s", gone, held, t)
+        log.info("%s: %s back after %.1f s; resuming at t=%.3f s", self.source, gone, held, t)
         return True
 
     async def ready_for(self, action, skip_ack: bool) -> bool:
@@ -157,6 +183,20 @@ class ReplayGate:
             if not isinstance(action, Publish) and action.ack is not None and not skip_ack:
                 if not await self.acknowledged(action.ack):
                     return False
+            if not self.missing():
+                return True
+
+    async def window_open(self, sent: deque[float]) -> bool:
+        """Until the tick after ``sent`` (the last ticks out, s, at most ``--max-ahead``) may go:
+        every awaited service live and, once ``sent`` is full, its oldest acknowledged (the last
+        tick said again while that is overdue); False if stopping. (A live source's pace with no
+        schedule of its own: the MQTT bridge's.)"""
+        while True:
+            if self.missing() and not await self.until(lambda: not self.missing(),
+                                                       lambda: "services " + ", ".join(self.missing())):
+                return False
+            if len(sent) == sent.maxlen and not await self.acknowledged(sent[0]):
+                return False
             if not self.missing():
                 return True
 
@@ -186,5 +226,6 @@ class ReplayGate:
                 return False
             if not owing():
                 return True
-            log.info("replay: end of stream at t=%g s said again, for %s (back after it went out)", t, ", ".join(owing()))
+            log.info("%s: end of stream at t=%g s said again, for %s (back after it went out)", self.source, t,
+                     ", ".join(owing()))
             say_again()

@@ -29,7 +29,6 @@ from dataclasses import dataclass
 from typing import Literal
 
 from bintrack.formats import check_value
-from bintrack.live.replay_schedule import Consumers
 from bintrack.mqtt.payload_reader import PayloadError, PayloadReader
 from bintrack.mqtt.sensor_table import SensorTable
 from bintrack.ordering import ReorderBuffer
@@ -278,53 +277,6 @@ class FaultLines:
         if shown == self.limit:
             return f"{fault.kind}: {count} so far; further ones are only counted (see the summary at the end)"
         return f"{fault.kind} #{count} on {fault.topic}: {fault.reason}"
-
-
-class ConsumerGate:
-    """Flow control of a live source, as replay's: the services awaited (``wanted``: names,
-    NAME*N for N instances), the consumers live and what each has acknowledged. A tick may go
-    out once every awaited service is live and every consumer has acknowledged the tick
-    ``max_ahead`` ticks before it."""
-
-    def __init__(self, name: str, wanted: list[str], max_ahead: int):
-        """``wanted``: service names, each item possibly a comma-separated list (--wait-for)."""
-        self.name = name
-        self.wanted = [n.strip() for item in wanted for n in item.split(",") if n.strip()]
-        self.alive: set[tuple[str, str]] = set()
-        self.consumers = Consumers()
-        self.sent: deque[float] = deque(maxlen=max_ahead)
-
-    def on_alive(self, service: str, instance: str, present: bool) -> None:
-        """A liveliness token of ``service``/``instance`` came (``present``) or went."""
-        entry = (service, instance)
-        if present:
-            self.alive.add(entry)
-            if service != self.name:
-                self.consumers.appeared(entry, self.sent[-1] if self.sent else None)
-        else:
-            self.alive.discard(entry)
-            self.consumers.vanished(entry)
-
-    def on_progress(self, service: str, instance: str, t: float) -> None:
-        self.consumers.reported((service, instance), t)
-
-    def missing(self) -> list[str]:
-        """The awaited services with fewer live instances than wanted."""
-        out = []
-        for wanted in self.wanted:
-            name, _, count = wanted.partition("*")
-            if sum(s == name for s, _ in self.alive) < (int(count) if count.isdigit() else 1):
-                out.append(wanted)
-        return out
-
-    def ready(self) -> bool:
-        """Whether the next tick may go out."""
-        ack = self.sent[0] if len(self.sent) == self.sent.maxlen else None
-        return not self.missing() and (ack is None or not self.consumers.owing(ack))
-
-    def acknowledged(self, t: float) -> bool:
-        """Whether every live consumer has acknowledged the tick at ``t`` (s) (the end waits for it)."""
-        return not self.missing() and not self.consumers.owing(t)
 
 
 class RecentSamples:
