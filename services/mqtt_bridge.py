@@ -151,7 +151,7 @@ class MqttBridge(Service):
             log.info("mqtt_bridge: %s; connection lost %d times", self.core.summary(), mqtt.losses)
 
     def _tick(self, control: bytes) -> bool:
-        """Publish the next due tick after its samples (once :meth:`_pace` let it); False if none is due."""
+        """Publish the next due tick after its samples (once the gate let it); False if none is due."""
         with self.lock:
             due = self.core.next_tick(time.time_ns() // 1000)
             if due is None:
