@@ -1,5 +1,5 @@
 """A checkpoint taken before the trackers and the messages were split into one module per concept
-still loads (:mod:`bintrack.live.moved_classes`), and its trackers go on exactly as trackers
+still loads (:mod:`bintrack.live.moved_classes`), and its trackers go on as trackers
 run from the start.
 
 ``data/checkpoint-before-moves/drivers.pickle.gz`` was pickled by that older version (commit
@@ -81,7 +81,7 @@ def old_checkpoint(tmp_path_factory) -> dict:
 
 
 @pytest.mark.parametrize("name", CASES)
-def test_a_checkpoint_of_the_version_before_the_moves_resumes_exactly(old_checkpoint, name):
+def test_a_checkpoint_of_the_version_before_the_moves_resumes_as_a_run_from_the_start(old_checkpoint, name):
     saved = old_checkpoint[name]
     folder, options = CASES[name]
     dataset = open_dataset(folder)
