@@ -134,7 +134,11 @@ def offline_tracks(tmp: Path):
 
 
 def live_tracks(proc: subprocess.Popen, lines: Lines, recording: Path, tmp: Path):
-    assert proc.wait(HUNG) == 0, lines.text[-4000:]
+    try:
+        status = proc.wait(HUNG)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"up did not end within {HUNG} s; its log ends:\n{lines.text[-6000:]}")
+    assert status == 0, lines.text[-4000:]
     lines.thread.join(HUNG)
     out = tmp / "live.csv"
     assert cli.main(["export", str(recording), "--what", "tracks", "--out", str(out)]) == 0
