@@ -137,7 +137,9 @@ def live_tracks(proc: subprocess.Popen, lines: Lines, recording: Path, tmp: Path
     try:
         status = proc.wait(HUNG)
     except subprocess.TimeoutExpired:
-        pytest.fail(f"up did not end within {HUNG} s; its log ends:\n{lines.text[-6000:]}")
+        (tmp / "up-hung.log").write_text(lines.text)
+        pytest.fail(f"up did not end within {HUNG} s; its whole log is in {tmp / 'up-hung.log'}, and ends:\n"
+                    f"{lines.text[-6000:]}")
     assert status == 0, lines.text[-4000:]
     lines.thread.join(HUNG)
     out = tmp / "live.csv"
