@@ -72,6 +72,7 @@ class MqttBridge(Service):
             journal = Path(checkpoints.path).with_suffix(".journal")
             if saved is not None:
                 self.core.restore(saved.core)
+                self.ended = self.core.final_tick is not None  # its predecessor had taken the end
                 taken = take_journal(journal, self.core.journal_seq, self._take)
                 self.resend_before = self.core.latest  # what the killed instance may have published
                 log.info("mqtt_bridge: restarted at the tick t=%s s; took the %d messages its journal kept since; "

@@ -281,6 +281,23 @@ def test_a_snapshot_restores_the_same_core(table):
     assert [core.next_tick(0) for _ in range(3)] == [copy.next_tick(0) for _ in range(3)]
 
 
+def test_a_snapshot_taken_after_the_end_keeps_it(table):
+    """A bridge killed while it sent its last ticks had taken the end topic's message (the
+    broker will not send it again): the restored core keeps the final tick, and ending it again
+    gives the same one, not one more tick past the last."""
+    core = BridgeCore(table, clock="payload", lateness=0.5)
+    for i, t in enumerate((0.2, 0.9, 1.4)):
+        core.receive("zigbee2mqtt/hall_pir_1", z2m(i % 2 == 0, t), retained=False, received_us=0, seq=i + 1)
+    final, _ = core.end()
+    core.next_tick(0)
+    copy = BridgeCore(table, clock="payload", lateness=0.5)
+    copy.restore(pickle.loads(pickle.dumps(core.snapshot())))
+    assert copy.final_tick == final == 1.5
+    while (due := copy.next_tick(0)) is not None:
+        last = due[0]
+    assert last == final and copy.end()[0] == final
+
+
 def test_the_bridge_paces_at_replays_gate_and_says_an_overdue_tick_again(monkeypatch):
     """The bridge's flow control is replay's gate with the bridge as the source: it waits for
     the awaited services, then for the tick --max-ahead back, saying the last tick again every

@@ -217,10 +217,12 @@ class BridgeCore:
     def end(self) -> tuple[float, float]:
         """End of stream (a message on the end topic): from now on every tick up to the final
         one is due, the first grid point past every sample and tick. (the final tick, the
-        end's event time: the latest sample's, else the last tick's, else 0), s."""
+        end's event time: the latest sample's, else the last tick's, else 0), s. Once set, the
+        final tick stays (a bridge restarted from a checkpoint taken after the end keeps it)."""
         times = [t for t in (self.last_tick, self.latest) if t is not None]
         last = max(times) if times else 0.0
-        self.final_tick = (math.floor(last / self.period) + 1) * self.period
+        if self.final_tick is None:
+            self.final_tick = (math.floor(last / self.period) + 1) * self.period
         return self.final_tick, (self.latest if self.latest is not None else last)
 
     # -- checkpoint -----------------------------------------------------------------------
