@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import math
 import secrets
 import threading
@@ -28,7 +27,7 @@ from bintrack.errors import CommandError
 from bintrack.live.checkpoint import BridgeCheckpoint
 from bintrack.live.service import Service, log, service_main
 from bintrack.live.control_guard import control_attachment
-from bintrack.live.replay_gate import ReplayGate
+from bintrack.live.replay_gate import ReplayGate, wanted_services
 from bintrack.bus_payloads import Clock, EndOfStream
 from bintrack.message_codec import RESENT, encode, encode_raw_sample
 from bintrack.mqtt.bridge_arguments import build_parser
@@ -53,13 +52,12 @@ class MqttBridge(Service):
         self.core = BridgeCore(self.table, period=args.clock_period, lateness=args.lateness, clock=args.clock,
                                max_rate=args.max_rate, end_topic=args.end_topic)
         self.raw_keys = {s.id: self.keys.raw(s.id) for s in self.table.sensors}
-        wanted = [n.strip() for item in args.wait_for for n in item.split(",") if n.strip()]
-        self.gate = ReplayGate(wanted, lambda: False, self.stopping, source=self.name)
+        self.gate = ReplayGate(wanted_services(args.wait_for), lambda: False, self.stopping, source=self.name)
         self.sent: deque[float] = deque(maxlen=args.max_ahead)  # the last ticks out (s)
         self.recent, self.lines = RecentSamples(), FaultLines()
         self.lock = threading.Lock()  # the core and the journal, between paho's thread and the loop
         self.journal, self.seq, self.resend_before = None, 0, None
-        self.changed, self.ended = asyncio.Event(), False
+        self.ended = False  # the end topic's message taken (set on paho's thread, seen within TICK_WALL)
 
     def listen_key(self) -> str:
         """The services' progress and done reports (not the traffic it causes)."""
@@ -112,19 +110,10 @@ class MqttBridge(Service):
         elif (line := self.lines.describe(outcome, self.core)) is not None:
             log.warning("mqtt_bridge: %s", line)
 
-    async def _until(self, condition, timeout: float | None = None) -> bool:
-        """Wait until ``condition()`` (True), a stop or ``timeout`` s (False); looks on each change."""
-        start = time.monotonic()
-        while not condition():
-            if self.stopping.is_set() or (timeout is not None and time.monotonic() - start > timeout):
-                return False
-            self.changed.clear()
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self.changed.wait(), TICK_WALL)
-        return True
-
     async def main(self) -> None:
-        if not await self._until(lambda: not self.gate.missing(), self.args.ready_timeout):
+        gate = self.gate
+        if not await gate.until(lambda: not gate.missing(), lambda: "services " + ", ".join(gate.missing()),
+                                self.args.ready_timeout):
             if not self.stopping.is_set():
                 log.error("mqtt_bridge: no liveliness token from %s after %g s", ", ".join(self.gate.missing()),
                           self.args.ready_timeout)
@@ -142,7 +131,7 @@ class MqttBridge(Service):
         control = control_attachment(self.name, self.instance, self.args.clock_period * self.args.max_ahead)
         try:
             while not self.stopping.is_set() and not self.ended:
-                await self._until(lambda: self.ended, TICK_WALL)
+                await asyncio.sleep(TICK_WALL)  # the next look at the clock (wall or payload time)
                 while not self.ended and await self.gate.window_open(self.sent) and self._tick(control):
                     await asyncio.sleep(0)
             if self.ended and not self.stopping.is_set():

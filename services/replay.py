@@ -29,7 +29,7 @@ from bintrack.errors import CommandError
 from bintrack.formats import FormatError
 from bintrack.keys import Keys
 from bintrack.live.control_guard import control_attachment
-from bintrack.live.replay_gate import ReplayGate
+from bintrack.live.replay_gate import ReplayGate, wanted_services
 from bintrack.live.checkpoint import ReplayCheckpoint
 from bintrack.live.replay_player import ReplayPlayer
 from bintrack.live.replay_schedule import MAX_GAP, TICK_FASTEST, TICK_WALL, default_clock_period, schedule
@@ -110,8 +110,7 @@ class Replay(Service):
         if self.source.recording is not None and self.source.recording.note():
             log.warning("replay: %s", self.source.recording.note())
         self.source.play_on(self.keys)
-        wanted = list(dict.fromkeys(name.strip() for item in args.wait_for for name in item.split(",") if name.strip()))
-        self.gate = ReplayGate(wanted, lambda: self.router_watch.lost_at is not None, self.stopping, args.hold)
+        self.gate = ReplayGate(wanted_services(args.wait_for), lambda: self.router_watch.lost_at is not None, self.stopping, args.hold)
         self.player: ReplayPlayer | None = None  # made in setup, once the run is known
         self.checked: asyncio.Task | None = None  # every row of the source read, while the others start
 

@@ -22,6 +22,12 @@ REPLAY = "replay"
 log = logging.getLogger("bintrack")
 
 
+def wanted_services(wait_for: list[str]) -> list[str]:
+    """The services a source waits for, from its ``--wait-for`` options (each a name, NAME*N,
+    or a comma-separated list of them), once each, in order."""
+    return list(dict.fromkeys(name.strip() for item in wait_for for name in item.split(",") if name.strip()))
+
+
 class ReplayGate:
     """Who a live source waits for. ``wanted``: the ``--wait-for`` services (``NAME`` or
     ``NAME*N``, N live instances); ``router_lost()`` whether the session has lost its router;
