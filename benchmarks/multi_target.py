@@ -153,6 +153,10 @@ def dataset(spec: dict, cache: Path) -> Path:
 VARIANTS: dict[str, dict] = {
     "default": {},
     "chains1": {"mcmcda": {"chains": 1}},
+    "reid4": {"mcmcda": {"reidentify": 4.0}},
+    "reid15": {"mcmcda": {"reidentify": 15.0}},
+    "reid30": {"mcmcda": {"reidentify": 30.0}},
+    "reid60": {"mcmcda": {"reidentify": 60.0}},
     "chains4": {"mcmcda": {"chains": 4}},
     "chains8": {"mcmcda": {"chains": 8}},
     "nmc2000": {"mcmcda": {"n_mc": 2000}},
@@ -378,6 +382,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     kinds = args.stonesoup or list(KINDS)
     per_half = args.grids or (3 if args.quick else 8)
+    if args.only and args.ours_only:
+        parser.error("--only runs ours on both halves; --ours-only is the tuning half: give one of them")
     seeds = list(range(args.mcmc_seeds or (2 if args.quick else 3)))
     args.cache.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
