@@ -1,6 +1,6 @@
 """Real PIR: the tracker's choices tried on the selection sets only (issue 38, second round).
 
-    .venv/bin/python benchmarks/real_pir_choices.py [--data ../shared/realdata/irtracking] [--seeds N] [--jobs 2]
+    .venv/bin/python benchmarks/real_pir_choices.py [--data ../shared/realdata/irtracking] [--seeds N] [--jobs 2] [--variant NAME]
 
 Never r1-medium (the sequence reported by ``benchmarks/real_sensors.py``). The sets:
 
@@ -45,6 +45,10 @@ VARIANTS = {
     "new target at 4 nats, not 2": ({"min_gain": 4.0}, {}),
     "birth rate 3e-4 per m2, not 1e-3": ({}, {"birth_rate": 3e-4}),
     "report pd 0.7, not 0.6": ({}, {"pd": 0.7}),
+    "q 0.1, not 0.02": ({}, {"process_noise": 0.1}),
+    "q 0.5, not 0.02": ({}, {"process_noise": 0.5}),
+    "window 10 scans, not 5": ({}, {"window": 10}),
+    "new track speed 1.0 m/s, not 1.5": ({}, {"initial_speed": 1.0}),
 }
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
 
@@ -147,13 +151,16 @@ def main() -> int:
     parser.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[1] / ".." / "shared" / "realdata" / "irtracking")
     parser.add_argument("--seeds", type=int, default=5, help="mcmcda seeds on r1-easy (default 5)")
     parser.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
+    parser.add_argument("--variant", action="append", choices=list(VARIANTS)[1:], metavar="NAME",
+                        help="only this variant beside today's settings (repeatable; default: all of them)")
     args = parser.parse_args()
     if not (args.data / "r1-easy.txt").exists():
         print(f"skipped: the recording is not in {args.data}")
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         runs = datasets(args.data, Path(tmp), args.seeds)
-        jobs = [(v, name, path, seed) for v in VARIANTS for name, path, seed in runs]
+        chosen = [next(iter(VARIANTS)), *args.variant] if args.variant else list(VARIANTS)
+        jobs = [(v, name, path, seed) for v in chosen for name, path, seed in runs]
         with ProcessPoolExecutor(args.jobs) as pool:
             results = list(pool.map(score, *zip(*[(v, p, s) for v, _, p, s in jobs])))
     table: dict = defaultdict(lambda: defaultdict(list))
