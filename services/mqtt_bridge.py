@@ -111,9 +111,7 @@ class MqttBridge(Service):
             log.warning("mqtt_bridge: %s", line)
 
     async def main(self) -> None:
-        gate = self.gate
-        if not await gate.until(lambda: not gate.missing(), lambda: "services " + ", ".join(gate.missing()),
-                                self.args.ready_timeout):
+        if not await self.gate.all_present(self.args.ready_timeout):
             if not self.stopping.is_set():
                 log.error("mqtt_bridge: no liveliness token from %s after %g s", ", ".join(self.gate.missing()),
                           self.args.ready_timeout)

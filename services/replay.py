@@ -169,8 +169,7 @@ class Replay(Service):
     async def main(self) -> None:
         gate = self.gate
         if gate.wanted:
-            if not await gate.until(lambda: not gate.missing(), lambda: "services " + ", ".join(gate.missing()),
-                                    self.args.ready_timeout):
+            if not await gate.all_present(self.args.ready_timeout):
                 if not self.stopping.is_set():
                     log.error("replay: no liveliness token from %s on %s after %g s; is it running on this network?",
                               ", ".join(gate.missing()), self.keys.alive(), self.args.ready_timeout)

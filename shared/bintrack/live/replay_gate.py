@@ -163,6 +163,11 @@ class ReplayGate:
                 pass
         return True
 
+    async def all_present(self, timeout: float | None = None) -> bool:
+        """Wait until nothing is :meth:`missing` (True), saying which services it waits for;
+        False if stopping or after ``timeout`` s."""
+        return await self.until(lambda: not self.missing(), lambda: "services " + ", ".join(self.missing()), timeout)
+
     async def hold_while_missing(self, t: float) -> bool:
         """While an awaited service has no live instance (it died, or lost the router), hold the
         clock at ``t`` (s); True once all are back (False if stopping)."""
@@ -172,7 +177,7 @@ class ReplayGate:
         self.pauses += 1
         log.warning("%s: %s gone; holding event time at t=%.3f s until it is back", self.source, gone, t)
         started = time.monotonic()
-        if not await self.until(lambda: not self.missing(), lambda: "services " + ", ".join(self.missing())):
+        if not await self.all_present():
             return False
         held = time.monotonic() - started
         self.pacer.hold(held)
@@ -198,8 +203,7 @@ class ReplayGate:
         tick said again while that is overdue); False if stopping. (A live source's pace with no
         schedule of its own: the MQTT bridge's.)"""
         while True:
-            if self.missing() and not await self.until(lambda: not self.missing(),
-                                                       lambda: "services " + ", ".join(self.missing())):
+            if self.missing() and not await self.all_present():
                 return False
             if len(sent) == sent.maxlen and not await self.acknowledged(sent[0]):
                 return False
