@@ -194,6 +194,10 @@ VARIANTS: dict[str, dict] = {
     "evidence1.9": {"fusion": {"evidence_reference": 1.9}},
     "noevidence": {"fusion": {"evidence_reference": None}},
     "exit0": {"mcmcda": {"exit_depth": 0.0}},
+    "entry1": {"mcmcda": {"entry_depth": 1.0}},
+    "entry2": {"mcmcda": {"entry_depth": 2.0}},
+    "entry4": {"mcmcda": {"entry_depth": 4.0}},
+    "entry2g8": {"mcmcda": {"entry_depth": 2.0, "entry_gain": 8.0}},
     "exit2": {"mcmcda": {"exit_depth": 2.0}},
     "exit3": {"mcmcda": {"exit_depth": 3.0}},
     "exit4": {"mcmcda": {"exit_depth": 4.0}},
@@ -364,6 +368,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --ours-only: the --variant runs alone, not the defaults beside them")
     parser.add_argument("--only", choices=sorted(VARIANTS),
                         help="just this setting of ours on both halves (no Stone Soup, no defaults)")
+    parser.add_argument("--half", choices=("tuning", "held-out"),
+                        help="with --only: that half alone (default both)")
     parser.add_argument("--tuned", type=Path,
                         help="the --json record of an earlier run: its chosen Stone Soup settings instead of tuning")
     parser.add_argument("--conditions", type=int, default=0, metavar="N",
@@ -384,6 +390,8 @@ def main(argv: list[str] | None = None) -> int:
     per_half = args.grids or (3 if args.quick else 8)
     if args.only and args.ours_only:
         parser.error("--only runs ours on both halves; --ours-only is the tuning half: give one of them")
+    if args.half and not args.only:
+        parser.error("--half goes with --only")
     seeds = list(range(args.mcmc_seeds or (2 if args.quick else 3)))
     args.cache.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
@@ -420,7 +428,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.conditions_only:
             return run_conditions(progress, tuned, kinds, seeds, args)
         jobs = [(name, path, seeds, args.only or "default") for name, (half, path) in names.items()
-                if not args.ours_only or (half == "tuning" and not args.variants_only)]
+                if (not args.ours_only or (half == "tuning" and not args.variants_only))
+                and half == (args.half or half)]
         jobs += [(name, path, seeds, v) for v in args.variant for name, (half, path) in names.items() if half == "tuning"]
         ours: dict[tuple[str, str], list] = {}
         cases = {}
@@ -438,7 +447,8 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.only:
             for group in (tuning, held):
-                print(_ours_table(ours, group, [args.only], halves))
+                if all((n, args.only) in ours for n in group):
+                    print(_ours_table(ours, group, [args.only], halves))
             if args.json:  # for benchmarks/multi_chains.py
                 args.json.write_text(json.dumps({"ours": {f"{n}/{v}": [s.__dict__ | {"series": None} for s in sc]
                                                           for (n, v), sc in ours.items()}}, default=float, indent=1))

@@ -236,6 +236,23 @@ def test_a_track_unreported_at_the_field_edge_is_not_coasted(last_x, field_depth
     assert [tr.track for tr in tracks] == ([1] if coasted else [])
 
 
+@pytest.mark.parametrize("first_x, weight, at_once", [(-1.0, 12.0, True), (-1.0, 5.0, False), (25.0, 12.0, False)])
+def test_a_person_entering_at_the_field_edge_is_published_at_their_first_report(first_x, weight, at_once):
+    # one person walks along y = 30 at 1.5 m/s from first_x: with entry_depth = 2 m, a first
+    # report near or outside the field's edge with evidence ≥ entry_gain (8 nats) is shown at
+    # once, under the identity the chain's track of it then keeps; a weak one, or one deep
+    # inside the field, is shown from the second report on, as without entries
+    tracker = OnlineMCMCDA(MCMCDAConfig(seed=0, entry_depth=2.0), field_depth=square_field_depth)
+    rng = np.random.default_rng(3)
+    published = []
+    for k in range(8):
+        report = PositionReport(x=first_x + 0.75 * k + rng.normal(0, 0.3), y=30 + rng.normal(0, 0.3),
+                                cov=((0.5, 0.0), (0.0, 0.5)), weight=weight)
+        published.append([tr.track for tr in tracker.step(PositionReports(t=0.5 * k, reports=[report])).tracks])
+    assert published[0] == ([1] if at_once else [])
+    assert all(ids == [1] for ids in published[1:])
+
+
 def test_mcmcda_is_deterministic_given_the_seed():
     _, scans = constant_velocity_reports(seed=4, scans=40)
     first, again, other = (OnlineMCMCDA(MCMCDAConfig(seed=seed)) for seed in (7, 7, 8))

@@ -106,7 +106,7 @@ class OnlineMCMCDA(ScanWindow, ChainMoves, TrackIdentity):
             self._next_report += 1
             extra = self.config.extra_variance
             self._reports[rid] = WindowReport(self._scan, scan.t, r.x, r.y, max(r.cov[0][0] + extra, 1e-6),
-                                         max(r.cov[1][1] + extra, 1e-6), r.shared)
+                                         max(r.cov[1][1] + extra, 1e-6), r.shared, r.weight)
             ids.append(rid)
         self._scans.append((self._scan, scan.t, ids))
         while len(self._scans) > self.config.window:

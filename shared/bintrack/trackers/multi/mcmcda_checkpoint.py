@@ -14,6 +14,9 @@ def upgrade_checkpoint(chain: OnlineMCMCDA) -> None:
     it had ``_by_scan``) gets them from its window, as :meth:`~OnlineMCMCDA.step` made them."""
     chain.__dict__.setdefault("_rates", None)  # before online rate estimates (adapt_rates)
     chain.__dict__.setdefault("field_depth", None)  # before exits (exit_depth): its tracker sets it
+    for report in chain._reports.values():  # before entries (entry_depth): the window's reports
+        if not hasattr(report, "weight"):    # are past scans', never entries again
+            report.weight = 1.0
     if "_gates" in chain.__dict__:
         return
     chain.__dict__.pop("_by_scan", None)

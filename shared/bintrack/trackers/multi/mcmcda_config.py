@@ -59,6 +59,16 @@ class MCMCDAConfig:
     prediction lies less than this far (units; negative: outside) inside the sensor field, the
     sensors' convex hull: there a person no sensor reports has most likely left (1 m chosen on
     the tuning half of ``benchmarks/multi_target.py``); None: coasted anywhere"""
+    entry_depth: float | None = None
+    """a report of this scan that no track of the MAP holds, lies less than this far (units)
+    inside the sensor field and in no live track's gate is published at once, as a person
+    entering (a track needs two reports), if its evidence is at least ``entry_gain``; None (the
+    default): a track is first shown at its second report. Tried at 2 m on
+    ``benchmarks/multi_target.py``: lower GOSPA on both halves, more identity switches on the
+    held-out one (docs/peers.md)"""
+    entry_gain: float = 10.0
+    """nats of evidence (the report's weight, fitted fusion) a report needs to be published as an
+    entry (10 chosen on the tuning half: 8 let more clutter through)"""
     reidentify: float = 8.0
     """s: a new track takes the identity of a track last shown at most this long ago (and
     before its first report), if that report lies within ``gate_sigmas`` of the old track's
@@ -84,6 +94,7 @@ class MCMCDAConfig:
                        initial_speed=self.initial_speed * k, max_speed=self.max_speed * k,
                        false_alarm_rate=self.false_alarm_rate / (k * k), birth_rate=self.birth_rate / (k * k),
                        exit_depth=None if self.exit_depth is None else self.exit_depth * k,
+                       entry_depth=None if self.entry_depth is None else self.entry_depth * k,
                        birth_edge=None if self.birth_edge is None else self.birth_edge * k,
                        birth_area=None if self.birth_area is None else tuple(v * k for v in self.birth_area))
 
@@ -94,7 +105,7 @@ class MCMCDAConfig:
                   ("max_speed", self.max_speed > 0), ("initial_speed", self.initial_speed > 0),
                   ("process_noise", self.process_noise > 0), ("extra_variance", self.extra_variance >= 0),
                   ("gate_sigmas", self.gate_sigmas > 0), ("coast", self.coast >= 0), ("reidentify", self.reidentify >= 0), ("min_reports", self.min_reports >= 2),
-                  ("adapt_rates", self.adapt_rates >= 0)]
+                  ("adapt_rates", self.adapt_rates >= 0), ("entry_gain", self.entry_gain >= 0)]
         bad = [name for name, ok in checks if not ok]
         if bad:
             raise TrackerConfigError(f"MCMCDA parameter out of range: {', '.join(f'{n}={getattr(self, n)}' for n in bad)}")

@@ -30,7 +30,8 @@ class Anchor:
 @dataclass(slots=True)
 class WindowReport:
     """A report of the window: its scan, time (s), position and per-axis variance (the report's
-    covariance diagonal plus ``extra_variance``, units²), and whether it is a shared copy."""
+    covariance diagonal plus ``extra_variance``, units²), whether it is a shared copy, and its
+    evidence (nats, :attr:`~bintrack.bus_payloads.PositionReport.weight`)."""
 
     scan: int
     t: float
@@ -39,6 +40,7 @@ class WindowReport:
     rx: float
     ry: float
     shared: bool = False
+    weight: float = 1.0
 
 
 class Gate:

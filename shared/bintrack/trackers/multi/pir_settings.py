@@ -25,6 +25,8 @@ ceiling-PIR recording of Milan et al., ACCV 2014 workshops; reported on r1-mediu
 * ``exit_depth`` None: a track is coasted near the room's walls too, as before exits were
   added (they were chosen on paper 004's outdoor grid, where people leave across the field's
   edge, and not tried in the room);
+* ``entry_depth`` None: a person is shown from their track's second report, as before entries
+  were added (chosen on paper 004's outdoor grid, not tried in the room);
 * ``evidence_reference`` None: the bars stay in fixed nats however clean the fitted sensors (the
   scaling was chosen on paper 004's outdoor grid, and not tried in the room);
 * births: λ_b ten times lower farther than 1.5 m from the walls (``MCMCDAConfig.birth_edge``):
@@ -64,7 +66,7 @@ def pir_settings(deployment: Deployment, fusion: FusionConfig, config: MCMCDACon
     radius = statistics.median(s.range for s in deployment.sensors if isinstance(s, DiskSensor))
     radius_m = radius * deployment.metres_per_unit
     config = replace(config, extra_variance=(radius_m / FOOTPRINT_SIGMAS) ** 2, pd=PIR_REPORT_PD,
-                     birth_rate=PIR_BIRTH_RATE, max_misses=PIR_MAX_MISSES, exit_depth=None)
+                     birth_rate=PIR_BIRTH_RATE, max_misses=PIR_MAX_MISSES, exit_depth=None, entry_depth=None)
     if DOOR_DEPTH is not None:
         r = deployment.region
         m = deployment.metres_per_unit

@@ -20,6 +20,10 @@ someone else). Else it gets a fresh identity.
 A published track that goes unreported is shown predicted for ``coast`` scans, except where
 its prediction lies less than ``exit_depth`` inside the sensor field (:meth:`_left`): at the
 field's edge a person no sensor reports has most likely left it.
+
+With ``entry_depth`` set (off by default), a person is shown from their first report where
+they most likely come in (:meth:`_entries`): a report of the scan that the MAP leaves false, near
+or outside the field's edge, strong (``entry_gain``) and in no live track's gate.
 """
 
 from __future__ import annotations
@@ -129,6 +133,39 @@ class TrackIdentity:
         return (last_scan < self._scan and c.exit_depth is not None and depth is not None
                 and depth(sx[0], sy[0]) < c.exit_depth)
 
+    def _entries(self, t: float, in_use: set[int]) -> list[Track]:
+        """This scan's reports published as people entering (``entry_depth``): free in the
+        MAP, not shared, near or outside the field's edge and in no live track's gate. Each
+        gets the identity a track first published with it would (:meth:`_stitch`; none of
+        ``in_use``), which the track the chain later makes of it takes (:meth:`_label`)."""
+        c, depth = self.config, self.field_depth
+        if c.entry_depth is None or depth is None:
+            return []
+        held = {r for track in self._tracks for r in track.reports}
+        candidates = [rid for rid in self._scans[-1][2] if rid not in held and not self._reports[rid].shared
+                      and self._reports[rid].weight >= c.entry_gain
+                      and depth(self._reports[rid].x, self._reports[rid].y) < c.entry_depth]
+        if not candidates:
+            return []
+        live = [(track, end) for track, end in zip(self._tracks, map(self._end_of, self._tracks))
+                if end is not None and self._scan - end[0] <= c.max_misses]
+        ends = [end for _, end in live if end[0] < self._scan]
+        near = [self._predicted(track, t)[:2] for track, _ in live]
+        out = []
+        for rid in candidates:
+            rep = self._reports[rid]
+            if (any(self._follows(*end, rid) for end in ends)
+                    or any((rep.x - sx[0]) ** 2 + (rep.y - sy[0]) ** 2
+                           <= c.gate_sigmas ** 2 * (max(sx[2], sy[2]) + max(rep.rx, rep.ry)) for sx, sy in near)):
+                continue
+            self._owner[rid] = identity = self._stitch(ChainTrack((rid,)), in_use, t)
+            in_use.add(identity)
+            # shown like any track: a track the chain begins after it without this report may continue it
+            sx, sy = self._initial(rep)
+            self._last_seen[identity] = ((rep.scan, rep.t, rep.x, rep.y, max(rep.rx, rep.ry)), t, sx, sy)
+            out.append(Track(track=identity, x=rep.x, y=rep.y))
+        return out
+
     def _publish(self, t: float) -> TrackSet:
         c = self.config
         shown, hidden = [], []
@@ -167,5 +204,6 @@ class TrackIdentity:
                 in_use.add(track.label)
             self._last_seen[track.label] = (self._end_of(track), t, sx, sy)
             out.append(Track(track=track.label, x=sx[0], y=sy[0], vx=sx[1], vy=sy[1]))
+        out += self._entries(t, in_use)
         out.sort(key=lambda tr: tr.track)
         return TrackSet(t=t, tracker=self.name, tracks=out)
