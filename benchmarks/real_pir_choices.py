@@ -30,8 +30,9 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import time
 from collections import defaultdict
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import replace
 from pathlib import Path
 
@@ -106,7 +107,6 @@ def soft_like(like: Path, out: Path) -> Path:
 
 
 def datasets(data: Path, work: Path, seeds: int) -> list[tuple[str, Path, int]]:
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
     from real_sensors import import_sequence
 
     stated = import_sequence(data, "r1-easy", work / "stated", "--range", "0.7")
@@ -157,12 +157,20 @@ def main() -> int:
     if not (args.data / "r1-easy.txt").exists():
         print(f"skipped: the recording is not in {args.data}")
         return 0
+    from bench_support import say
+
+    started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
+        say("real_pir_choices: importing r1-easy, calibrating it and simulating the selection sets")
         runs = datasets(args.data, Path(tmp), args.seeds)
         chosen = [next(iter(VARIANTS)), *args.variant] if args.variant else list(VARIANTS)
         jobs = [(v, name, path, seed) for v in chosen for name, path, seed in runs]
+        results: list = [None] * len(jobs)
         with ProcessPoolExecutor(args.jobs) as pool:
-            results = list(pool.map(score, *zip(*[(v, p, s) for v, _, p, s in jobs])))
+            pending = {pool.submit(score, v, p, s): k for k, (v, _, p, s) in enumerate(jobs)}
+            for done, future in enumerate(as_completed(pending), 1):
+                results[pending[future]] = future.result()
+                say(f"  [{time.perf_counter() - started:6.0f} s] tracked and scored: {done}/{len(jobs)}")
     table: dict = defaultdict(lambda: defaultdict(list))
     for (v, name, _, _), r in zip(jobs, results):
         table[v][name].append(r)

@@ -239,7 +239,7 @@ def test_a_track_unreported_at_the_field_edge_is_not_coasted(last_x, field_depth
 @pytest.mark.parametrize("first_x, weight, at_once", [(-1.0, 12.0, True), (-1.0, 5.0, False), (25.0, 12.0, False)])
 def test_a_person_entering_at_the_field_edge_is_published_at_their_first_report(first_x, weight, at_once):
     # one person walks along y = 30 at 1.5 m/s from first_x: with entry_depth = 2 m, a first
-    # report near or outside the field's edge with evidence ≥ entry_gain (8 nats) is shown at
+    # report near or outside the field's edge with evidence ≥ entry_gain (10 nats) is shown at
     # once, under the identity the chain's track of it then keeps; a weak one, or one deep
     # inside the field, is shown from the second report on, as without entries
     tracker = OnlineMCMCDA(MCMCDAConfig(seed=0, entry_depth=2.0), field_depth=square_field_depth)
