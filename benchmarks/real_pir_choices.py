@@ -32,7 +32,7 @@ import sys
 import tempfile
 import time
 from collections import defaultdict
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -165,11 +165,10 @@ def main() -> int:
         runs = datasets(args.data, Path(tmp), args.seeds)
         chosen = [next(iter(VARIANTS)), *args.variant] if args.variant else list(VARIANTS)
         jobs = [(v, name, path, seed) for v in chosen for name, path, seed in runs]
-        results: list = [None] * len(jobs)
+        results = []
         with ProcessPoolExecutor(args.jobs) as pool:
-            pending = {pool.submit(score, v, p, s): k for k, (v, _, p, s) in enumerate(jobs)}
-            for done, future in enumerate(as_completed(pending), 1):
-                results[pending[future]] = future.result()
+            for done, result in enumerate(pool.map(score, *zip(*[(v, p, s) for v, _, p, s in jobs])), 1):
+                results.append(result)
                 say(f"  [{time.perf_counter() - started:6.0f} s] tracked and scored: {done}/{len(jobs)}")
     table: dict = defaultdict(lambda: defaultdict(list))
     for (v, name, _, _), r in zip(jobs, results):
