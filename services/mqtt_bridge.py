@@ -70,9 +70,10 @@ class MqttBridge(Service):
             journal = Path(checkpoints.path).with_suffix(".journal")
             if saved is not None:
                 self.core.restore(saved.core)
-                self.ended = self.core.final_tick is not None  # its predecessor had taken the end
+                self.ended = self.core.ended  # its predecessor had taken the end
                 taken = take_journal(journal, self.core.journal_seq, self._take)
-                self.resend_before = self.core.latest  # what the killed instance may have published
+                # it checkpointed each tick once put: it may have put the samples of one tick more (as replay)
+                self.resend_before = self.core.last_tick + self.core.period
                 log.info("mqtt_bridge: restarted at the tick t=%s s; took the %d messages its journal kept since; "
                          "lost none the broker had acknowledged", self.core.last_tick, taken)
             self.seq, self.journal = self.core.journal_seq, MessageJournal(journal, CHECKPOINT_WALL)

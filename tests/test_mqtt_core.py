@@ -16,7 +16,7 @@ import bintrack.live.replay_gate as replay_gate
 from bintrack.formats import Event, open_dataset
 from bintrack.keys import Keys, parse_key
 from bintrack.live.replay_gate import ReplayGate
-from bintrack.mqtt.bridge_core import BridgeCore, Fault, FaultLines, Retained, Sample
+from bintrack.mqtt.bridge_core import BridgeCore, End, Fault, FaultLines, Retained, Sample
 from bintrack.mqtt.broker_options import BrokerConfigError, broker_options, parse_broker_url
 from bintrack.mqtt.payload_reader import PayloadError, PayloadReader
 from bintrack.mqtt.sensor_table import PayloadSpec, TableError, load_table, parse_instant, table_text
@@ -296,6 +296,25 @@ def test_a_snapshot_taken_after_the_end_keeps_it(table):
     while (due := copy.next_tick(0)) is not None:
         last = due[0]
     assert last == final and copy.end()[0] == final
+
+
+def test_a_snapshot_taken_between_the_end_message_and_the_final_ticks_keeps_the_end(table):
+    """The end topic's message taken (and acknowledged to the broker), then a checkpoint at a
+    tick before the bridge set its final tick, then SIGKILL: the restored core knows the stream
+    ended, so its successor sends the last ticks and the end (it used to wait for ever)."""
+    core = BridgeCore(table, clock="payload", lateness=0.5, end_topic="bintrack/end")
+    for i, t in enumerate((0.2, 0.9, 1.4)):
+        core.receive("zigbee2mqtt/hall_pir_1", z2m(i % 2 == 0, t), retained=False, received_us=0, seq=i + 1)
+    assert isinstance(core.receive("bintrack/end", b"", retained=False, received_us=0, seq=4), End)
+    core.next_tick(0)
+    copy = BridgeCore(table, clock="payload", lateness=0.5, end_topic="bintrack/end")
+    copy.restore(pickle.loads(pickle.dumps(core.snapshot())))
+    assert copy.ended and copy.final_tick is None and copy.journal_seq == 4
+    assert copy.end()[0] == core.end()[0] == 1.5
+    old = core.snapshot()
+    del old["ended"]  # a checkpoint written before the core kept it: the final tick says it
+    copy.restore(old)
+    assert copy.ended
 
 
 def test_the_bridge_paces_at_replays_gate_and_says_an_overdue_tick_again(monkeypatch):

@@ -104,6 +104,7 @@ class BridgeCore:
         self.latest: float | None = None  # the latest event time of a sample taken (s)
         self.earliest: float | None = None  # the earliest, before the first tick
         self.last_tick: float | None = None
+        self.ended = False  # a message on the end topic taken (the broker will not send it again)
         self.final_tick: float | None = None  # set at the end of the stream
         self.journal_seq = 0  # the last message taken (the service's numbering, for its journal)
         self._held: set[tuple[str, float, int]] = set()
@@ -125,6 +126,7 @@ class BridgeCore:
         if seq is not None:
             self.journal_seq = seq
         if topic == self.end_topic:
+            self.ended = True
             return End()
         self.received += 1
         row = self._rows.get(topic)
@@ -231,7 +233,8 @@ class BridgeCore:
         """What changes as messages come (for a checkpoint): plain data."""
         return {"buffer": self.buffer, "faults": dict(self.faults), "initial": dict(self.initial),
                 "received": self.received, "retained": self.retained, "released": self.released, "latest": self.latest,
-                "earliest": self.earliest, "last_tick": self.last_tick, "final_tick": self.final_tick, "journal_seq": self.journal_seq,
+                "earliest": self.earliest, "last_tick": self.last_tick, "ended": self.ended,
+                "final_tick": self.final_tick, "journal_seq": self.journal_seq,
                 "held": set(self._held), "done": list(self._done),
                 "buckets": {topic: (row.tokens, row.filled_at) for topic, row in self._rows.items()}}
 
@@ -243,6 +246,7 @@ class BridgeCore:
         self.received, self.retained, self.released = state["received"], state["retained"], state["released"]
         self.latest, self.earliest, self.last_tick = state["latest"], state["earliest"], state["last_tick"]
         self.final_tick = state["final_tick"]
+        self.ended = state.get("ended", self.final_tick is not None)  # (checkpoints before "ended" was kept)
         self.journal_seq = state["journal_seq"]
         self._held = set(state["held"])
         self._done = deque(state["done"])
