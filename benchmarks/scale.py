@@ -16,10 +16,11 @@ with the one-region baseline:
 * in total on this one machine: the window over the sum of the regions' CPU time;
 * messages per event second through each region's router (mean over the regions), counted from
   the window's transitions as the mesh routes them: the transitions its sensor agent publishes,
-  those its base station needs (its sensors and the band), those it delivers to the base
-  station today (every transition of the network: a service holds one subscription to its
-  whole network, ``bintrack/<net>/**``, to keep each publisher's order), and the results it
-  publishes (``region/<r>/{tracks,fusion/reports}`` per scan, plus a progress per clock tick).
+  those its base station needs (its sensors and the band: what it is delivered since design
+  §11), those it was delivered before (every transition of the network, when each service held
+  one subscription to its whole network, ``bintrack/<net>/**``, to keep each publisher's
+  order), and the results it publishes (``region/<r>/{tracks,fusion/reports}`` per scan, plus a
+  progress per clock tick).
 
 and a plot (``--plot``).
 """
