@@ -50,6 +50,10 @@ VARIANTS = {
     "q 0.5, not 0.02": ({}, {"process_noise": 0.5}),
     "window 10 scans, not 5": ({}, {"window": 10}),
     "new track speed 1.0 m/s, not 1.5": ({}, {"initial_speed": 1.0}),
+    "blob split at 5 nats, not 8": ({"expected_split_gain": 5.0}, {}),
+    "track kept 8 missed scans, not 5": ({}, {"max_misses": 8}),
+    "entries from one report (1 m, 4 nats)": ({}, {"entry_depth": 1.0, "entry_gain": 4.0}),
+    "exits at the walls (1 m)": ({}, {"exit_depth": 1.0}),
 }
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
 
