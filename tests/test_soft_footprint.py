@@ -61,6 +61,7 @@ def test_only_a_fitted_deployment_gets_the_real_pir_settings():
     assert fusion.soft_spread == 0.5 and fusion.threshold == 2
     assert fusion.evidence_reference is None and config.exit_depth is None  # chosen outdoors, not tried here
     assert config.max_misses == 5 and config.coast == MCMCDAConfig().coast
+    assert (config.entry_depth, config.entry_gain) == (1.0, 4.0)  # people coming in are shown from one report
     assert GridFusion(_room(hold=0.0), fusion).soft.spread == pytest.approx(np.full(5, 0.6))
 
 
