@@ -65,7 +65,7 @@ class MCMCDAConfig:
     entering (a track needs two reports), if its evidence is at least ``entry_gain``; None (the
     default): a track is first shown at its second report. Tried at 2 m on
     ``benchmarks/multi_target.py``: lower GOSPA on both halves, more identity switches on the
-    held-out one (docs/peers.md)"""
+    held-out one (docs/peers.md); real PIR (:mod:`.pir_settings`) uses 1 m"""
     entry_gain: float = 10.0
     """nats of evidence (the report's weight, fitted fusion) a report needs to be published as an
     entry (10 chosen on the tuning half: 8 let more clutter through)"""
