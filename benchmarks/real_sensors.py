@@ -31,6 +31,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 SEQUENCES = ("r1-easy", "r1-medium")
@@ -92,15 +93,22 @@ def main() -> int:
     if not (args.data / "r1-easy.txt").exists():
         print(f"skipped: the recording is not in {args.data}")
         return 0
+    from bench_support import say
+
     rows = []
+    started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for name in SEQUENCES:
+            say(f"real_sensors: {name}: importing it and calibrating it from the detections alone")
             stated = import_sequence(args.data, name, work / f"{name}-stated", "--range", "0.7")
             guessed = import_sequence(args.data, name, work / f"{name}-guessed", "--range", "1.5", "--pd", "0.5", "--pfa", "0.03")
             fitted, agreement = calibrated(work, stated, name)
             plot = args.out / "real_r1_medium.png" if name == "r1-medium" else None
-            runs = [scores(fitted, seed, plot if seed == 0 else None) for seed in range(args.seeds)]
+            runs = []
+            for seed in range(args.seeds):
+                runs.append(scores(fitted, seed, plot if seed == 0 else None))
+                say(f"  [{time.perf_counter() - started:6.0f} s] {name}: tracked and scored mcmcda seed {seed}")
             rows.append((name, scores(stated), scores(guessed), runs, agreement))
     print("Real ceiling PIR (Milan et al. ACCV 2014 workshops), CLEAR MOT at 1.5 m (greedy), area [0,8]x[0,14] m, GOSPA c = 2 m")
     print("settings chosen on r1-easy; r1-medium is the sequence reported\n")
