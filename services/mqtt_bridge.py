@@ -31,7 +31,7 @@ from bintrack.live.replay_gate import ReplayGate, wanted_services
 from bintrack.bus_payloads import Clock, EndOfStream
 from bintrack.message_codec import RESENT, encode, encode_raw_sample
 from bintrack.mqtt.bridge_arguments import build_parser
-from bintrack.mqtt.bridge_core import BridgeCore, End, FaultLines, RecentSamples
+from bintrack.mqtt.bridge_core import BridgeCore, FaultLines, RecentSamples
 from bintrack.mqtt.broker_options import BrokerConfigError, broker_options
 from bintrack.mqtt.message_journal import MessageJournal, take_journal
 from bintrack.mqtt.mqtt_client import Subscription
@@ -57,7 +57,6 @@ class MqttBridge(Service):
         self.recent, self.lines = RecentSamples(), FaultLines()
         self.lock = threading.Lock()  # the core and the journal, between paho's thread and the loop
         self.journal, self.seq, self.resend_before = None, 0, None
-        self.ended = False  # the end topic's message taken (set on paho's thread, seen within TICK_WALL)
 
     def listen_key(self) -> str:
         """The services' progress and done reports (not the traffic it causes)."""
@@ -70,7 +69,6 @@ class MqttBridge(Service):
             journal = Path(checkpoints.path).with_suffix(".journal")
             if saved is not None:
                 self.core.restore(saved.core)
-                self.ended = self.core.ended  # its predecessor had taken the end
                 taken = take_journal(journal, self.core.journal_seq, self._take)
                 # it checkpointed each tick once put: it may have put the samples of one tick more (as replay)
                 self.resend_before = self.core.last_tick + self.core.period
@@ -106,9 +104,7 @@ class MqttBridge(Service):
 
     def _take(self, seq: int, topic: str, payload: bytes, retained: bool, received: int) -> None:
         outcome = self.core.receive(topic, payload, retained=retained, received_us=received, seq=seq)
-        if isinstance(outcome, End):  # the loop sees it within TICK_WALL
-            self.ended = True
-        elif (line := self.lines.describe(outcome, self.core)) is not None:
+        if (line := self.lines.describe(outcome, self.core)) is not None:  # (the end: core.ended, seen within TICK_WALL)
             log.warning("mqtt_bridge: %s", line)
 
     async def main(self) -> None:
@@ -129,11 +125,11 @@ class MqttBridge(Service):
             return
         control = control_attachment(self.name, self.instance, self.args.clock_period * self.args.max_ahead)
         try:
-            while not self.stopping.is_set() and not self.ended:
+            while not self.stopping.is_set() and not self.core.ended:
                 await asyncio.sleep(TICK_WALL)  # the next look at the clock (wall or payload time)
-                while not self.ended and await self.gate.window_open(self.sent) and self._tick(control):
+                while not self.core.ended and await self.gate.window_open(self.sent) and self._tick(control):
                     await asyncio.sleep(0)
-            if self.ended and not self.stopping.is_set():
+            if self.core.ended and not self.stopping.is_set():
                 await self._finish(control)
         finally:
             mqtt.stop()
