@@ -104,7 +104,8 @@ class MqttBridge(Service):
 
     def _take(self, seq: int, topic: str, payload: bytes, retained: bool, received: int) -> None:
         outcome = self.core.receive(topic, payload, retained=retained, received_us=received, seq=seq)
-        if (line := self.lines.describe(outcome, self.core)) is not None:  # (the end: core.ended, seen within TICK_WALL)
+        # the end topic's message sets core.ended, which the loop sees within TICK_WALL
+        if (line := self.lines.describe(outcome, self.core)) is not None:
             log.warning("mqtt_bridge: %s", line)
 
     async def main(self) -> None:
