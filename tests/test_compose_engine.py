@@ -273,6 +273,24 @@ class Project:
                             "{{.Mountpoint}}").stdout.strip()
         return Path(mountpoint) / name
 
+    def diagnosis(self) -> str:
+        """What a hung run shows: each container's state and log, with every thread's Python stack
+        (the services write them on SIGUSR1), and the host's connections to the published ports."""
+        names = list(self.compose["services"])
+        running = [n for n in names if self.state(n)["State"]["Running"]]
+        for name in running:
+            podman(self.env, "kill", "-s", "USR1", self.container(name), check=False)
+        stack = "most recent call first"
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline and not all(stack in self.log(n) for n in running):
+            time.sleep(0.2)
+        states = podman(self.env, "ps", "-a", "--format", "{{.Names}} {{.Status}}", check=False).stdout
+        sockets = subprocess.run(["ss", "-tnp"], capture_output=True, text=True).stdout if shutil.which("ss") else ""
+        published = [line for line in sockets.splitlines() if ":7447 " in line or ":8080 " in line] or ["none (or no ss)"]
+        logs = "\n".join(f"--- {n}\n{self.log(n)[-6000:]}" for n in names)
+        return (f"{states}--- the map's last answer: {MAP_ANSWERS or 'none'}\n--- host connections to 7447 and 8080\n"
+                + "\n".join(published) + f"\n{logs}")
+
     def close(self) -> None:
         self.compose_cmd("down", "-t", "20", "-v")
         for name in self.compose["networks"]:
@@ -293,16 +311,21 @@ def wait_until(condition, what: str, project: Project | None = None, timeout: fl
         if value:
             return value
         time.sleep(0.2)
-    logs = "" if project is None else "\n".join(f"--- {n}\n{project.log(n)[-1500:]}" for n in project.compose["services"])
-    raise AssertionError(f"{what}: not within {timeout:.0f} s\n{logs}")
+    raise AssertionError(f"{what}: not within {timeout:.0f} s\n{'' if project is None else project.diagnosis()}")
+
+
+MAP_ANSWERS: list[str] = []  # what the map's last answer was: "state.json" or the error
 
 
 def map_state() -> dict | None:
     try:
         with urllib.request.urlopen(MAP + "/state.json", timeout=5) as response:
-            return json.load(response)
-    except (OSError, ValueError):
+            state = json.load(response)
+    except (OSError, ValueError) as exc:
+        MAP_ANSWERS[:] = [f"{type(exc).__name__}: {exc}"]
         return None
+    MAP_ANSWERS[:] = ["state.json" + ("" if state.get("deployment") else " without a deployment")]
+    return state
 
 
 class Watch:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import faulthandler
 import logging
 import os
 import signal
@@ -249,8 +250,12 @@ class Service:
 
 
 def configure_logging(verbose: bool = False) -> None:
+    """Log lines ``HH:MM:SS message`` on stderr; SIGUSR1 then writes every thread's Python stack
+    there too, at once even when the process is stuck in Zenoh (``kill -USR1 PID`` asks a hung
+    service where it is)."""
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO,
                         format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
 
 
 def service_main(service_cls: type[Service], build_parser: Callable[[], argparse.ArgumentParser],
