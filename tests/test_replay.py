@@ -338,6 +338,8 @@ def test_missing_service_times_out_with_a_clear_error(tmp_path, zenoh_router, se
 ])
 def test_bad_source_is_one_line_and_exit_2(tmp_path, make, message):
     source = make(tmp_path)
-    result = bintrack("replay", str(source), "--wait", "1")
+    # a port nobody listens on: the default 127.0.0.1:7447 may be another stack's router (CI's
+    # compose test publishes one there), which this replay would join until it found the bad row
+    result = bintrack("replay", str(source), "-e", f"tcp/127.0.0.1:{free_port()}", "--wait", "1")
     assert result.returncode == 2
     assert len(result.stderr.strip().splitlines()) == 1 and message in result.stderr, result.stderr

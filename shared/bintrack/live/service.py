@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import faulthandler
+import io
 import logging
 import os
 import signal
@@ -255,7 +256,10 @@ def configure_logging(verbose: bool = False) -> None:
     service where it is)."""
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO,
                         format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
-    faulthandler.register(signal.SIGUSR1, all_threads=True)
+    try:
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
+    except (io.UnsupportedOperation, ValueError):  # stderr is not a file (a caller's capture): no dumps
+        pass
 
 
 def service_main(service_cls: type[Service], build_parser: Callable[[], argparse.ArgumentParser],
