@@ -27,11 +27,10 @@ from pathlib import Path
 from bench_support import REPO
 from bintrack.evaluation.track_agreement import agreement
 from bintrack.formats import open_dataset
-from bintrack.pipeline import TrackerDriver, output_rows, run_regions, run_tracker
+from bintrack.pipeline import output_rows, run_regions, run_tracker
 from bintrack.regions import RegionMap
 from bintrack.trackers import TrackerOptions, make_tracker
 from bintrack.trackers.multi.region_merge import RegionMerge
-from bintrack.transition_detector import TransitionDetector
 
 
 def seeds(text: str) -> list[int]:
@@ -48,21 +47,6 @@ def without_corners(deployment):
     return deployment.model_copy(update={"sensors": [s for s in deployment.sensors if s.id not in drop]})
 
 
-def run_unplugged(dataset, deployment):
-    """mcmcda on ``deployment``, a part of the dataset's sensors, fed only their transitions (as
-    run_tracker feeds the whole), as if the others were unplugged."""
-    kept = {s.id for s in deployment.sensors}
-    detector = TransitionDetector(dataset.deployment)
-    driver = TrackerDriver(make_tracker("mcmcda", deployment, TrackerOptions()))
-    for event in dataset.events():
-        transition = detector.update(event)
-        if transition is not None:
-            yield from driver.advance(transition.t)
-            if transition.sensor in kept:
-                driver.push(transition)
-    yield from driver.finish()
-
-
 def compare(folder: Path, band: float | None = None) -> dict[str, dict]:
     dataset = open_dataset(folder)
     deployment = dataset.deployment
@@ -75,7 +59,9 @@ def compare(folder: Path, band: float | None = None) -> dict[str, dict]:
         trackers[name] = make_tracker("mcmcda", part, TrackerOptions())
         taken[name] = {s.id for s in part.sensors}
     merged = list(output_rows(run_regions(dataset, trackers, taken, RegionMerge(regions))))
-    cornerless = list(output_rows(run_unplugged(dataset, without_corners(deployment))))
+    plugged = without_corners(deployment)
+    cornerless = list(output_rows(run_tracker(dataset, make_tracker("mcmcda", plugged, TrackerOptions()),
+                                              sensors={s.id for s in plugged.sensors})))
     out = {}
     for label, rows in (("regions merged", merged), ("whole, another seed", again),
                         ("whole, less its 4 corner sensors", cornerless)):

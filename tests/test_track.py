@@ -13,6 +13,7 @@ from bintrack.trackers import BASELINES, make_tracker
 from bintrack.transition_detector import TransitionDetector
 
 from conftest import write_foreign_dataset
+from support import DATASETS
 
 
 def _mean_error_over_range(folder, rows):
@@ -103,3 +104,30 @@ def test_transition_detector_numbers_changes_only():
     assert [g.seq for g in got[3:5]] == [1, 2]  # every beam crossing is an event
     assert got[5] == Transition(t=5, sensor="a", value=0, previous=1, seq=2)
     assert det.status("a") == (0, 2)
+
+
+class _Heard:
+    """A tracker that only keeps the transitions it is given and the times it is flushed to."""
+
+    def __init__(self):
+        self.heard: list[Transition] = []
+        self.flushed: list[float] = []
+
+    def update(self, transition):
+        self.heard.append(transition)
+        return []
+
+    def flush(self, t):
+        self.flushed.append(t)
+        return []
+
+
+def test_run_tracker_feeds_only_the_sensors_given_while_every_event_advances_time():
+    dataset = open_dataset(DATASETS / "darpa-grid-3")
+    everything, some = _Heard(), _Heard()
+    list(run_tracker(dataset, everything))
+    plugged = {s.id for s in dataset.deployment.sensors[::2]}
+    list(run_tracker(dataset, some, sensors=plugged))
+    assert some.heard == [t for t in everything.heard if t.sensor in plugged]
+    assert 0 < len(some.heard) < len(everything.heard)
+    assert some.flushed == everything.flushed  # the unplugged sensors' transitions still move event time

@@ -47,10 +47,13 @@ class TrackerDriver:
         return out
 
 
-def run_tracker(dataset: Dataset, tracker: Tracker, on_event: Callable[[int], None] | None = None) -> Iterator[Message]:
+def run_tracker(dataset: Dataset, tracker: Tracker, on_event: Callable[[int], None] | None = None,
+                sensors: set[str] | None = None) -> Iterator[Message]:
     """Feed every event of ``dataset`` to ``tracker`` and yield its outputs, then flush it.
 
-    ``on_event(count)`` is called after each event (for progress display).
+    ``on_event(count)`` is called after each event (for progress display). ``sensors``: only
+    these sensors' transitions reach the tracker, as if the others were unplugged (None: all);
+    every event still advances event time.
     """
     detector = TransitionDetector(dataset.deployment)
     driver = TrackerDriver(tracker)
@@ -58,7 +61,8 @@ def run_tracker(dataset: Dataset, tracker: Tracker, on_event: Callable[[int], No
         transition = detector.update(event)
         if transition is not None:
             yield from driver.advance(transition.t)
-            driver.push(transition)
+            if sensors is None or transition.sensor in sensors:
+                driver.push(transition)
         if on_event is not None:
             on_event(count)
     yield from driver.finish()
