@@ -19,7 +19,7 @@ from bintrack.live.session_options import client_config
 from bintrack.message_codec import decode, encode
 from bintrack.live.region_scan_counts import KEEP, SHORT_FOR, RegionScanCounts, ReportCheck
 from bintrack.regions import RegionMap
-from support import HUNG, bintrack, wait_logged
+from support import HUNG, bintrack, wait_logged, wait_until
 
 NET = "counts"
 TIMES = [0.5 * k for k in range(1, 13)]  # the scans, s
@@ -59,6 +59,18 @@ class BaseStations:
             *(self.session.liveliness().declare_token(self.keys.region_alive(r)) for r in self.kept),
             self.session.declare_subscriber(self.keys.tracks(), self.on_merged),
         ]
+
+    def wait_for(self, merge) -> None:
+        """Until the router routes the regions' scans and reports to ``merge``'s subscribers: a
+        put before that is dropped, and a lost first report would hold the merge back."""
+        keys = [k(r) for r in self.kept for k in (self.keys.region_tracks, self.keys.region_progress)]
+        publishers = [self.session.declare_publisher(k) for k in keys]
+        try:
+            wait_until(lambda: all(p.matching_status.matching for p in publishers), "the merge's subscribers",
+                       logs=[merge])
+        finally:
+            for publisher in publishers:
+                publisher.undeclare()
 
     def answer(self, region: str):
         def reply(query: zenoh.Query) -> None:
@@ -113,6 +125,7 @@ def test_a_scan_that_never_came_is_fetched_before_its_region_s_report_is_taken(s
                                                                               zenoh_router):
     merge = services("merge", "--net", NET, endpoint=zenoh_router)
     wait_logged(merge, "merging regions r0c0, r0c1")
+    stations.wait_for(merge)
     for t in TIMES:
         stations.scan(t, put=t != 2.0)
     for t in TIMES:
@@ -125,6 +138,7 @@ def test_a_scan_its_base_station_no_longer_has_is_named_lost_and_the_merge_goes_
                                                                                   zenoh_router):
     merge = services("merge", "--net", NET, endpoint=zenoh_router)
     wait_logged(merge, "merging regions r0c0, r0c1")
+    stations.wait_for(merge)
     for t in TIMES[:4]:
         stations.scan(t, put=t != 1.5, keep=t != 1.5)
     assert [tr.x for tr in stations.merged_at(1.0).tracks] == [x_at(1.0, stations.x0)]

@@ -147,11 +147,14 @@ def test_sigterm_ends_a_router_cleanly_and_its_neighbour_logs_it(chain):
 def test_sigusr1_writes_every_threads_stack_and_the_router_goes_on(tmp_path):
     # every service and router takes this from configure_logging: a hung one says where it is
     router = RouterProcess("solo", f"tcp/127.0.0.1:{free_port()}", [], tmp_path)
-    router.proc.send_signal(signal.SIGUSR1)
-    main_stack = r"Current thread 0x\w+ \(most recent call first\):\n(  File .*\n)*  File .*services/router\.py"
-    wait_until(lambda: re.search(main_stack, router.log), "the main thread's stack", logs=[router])
-    assert router.proc.poll() is None
-    assert router.stop(signal.SIGTERM) == 0 and "stopped" in router.log
+    try:
+        router.proc.send_signal(signal.SIGUSR1)
+        main_stack = r"Current thread 0x\w+ \(most recent call first\):\n(  File .*\n)*  File .*services/router\.py"
+        wait_until(lambda: re.search(main_stack, router.log), "the main thread's stack", logs=[router])
+        assert router.proc.poll() is None
+        assert router.stop(signal.SIGTERM) == 0 and "stopped" in router.log
+    finally:
+        stop_chain([router])
 
 
 def test_a_router_without_listen_endpoint_is_refused(tmp_path):
