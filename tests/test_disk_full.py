@@ -13,10 +13,11 @@ from pathlib import Path
 
 import pytest
 
-from bintrack.formats import open_dataset
-from bintrack.live.recording import open_recording
+from bintrack.formats import open_dataset, read_deployment
+from bintrack.live.disk_full import DiskFull
+from bintrack.live.recording import RecordingWriter, open_recording
 
-from test_faults import Up, exported_tracks, grid_slice, offline_rows  # noqa: F401 (fixtures)
+from test_faults import DARPA3, Up, exported_tracks, grid_slice, offline_rows  # noqa: F401 (fixtures)
 
 
 @pytest.fixture
@@ -81,3 +82,22 @@ def test_with_pause_a_full_disk_holds_event_time_until_space_is_back(grid_slice,
     assert "Traceback" not in up.log
     assert open_recording(recording).complete
     assert exported_tracks(recording, tmp_path) == offline_rows("mcmcda"), up.log[-4000:]
+
+
+def test_a_file_whose_ending_cannot_be_written_is_named_with_why_and_the_space_left(tmp_path, caplog):
+    # the last resort of a full disk (no room even for the 50-byte ending of an abandoned file)
+    writer = RecordingWriter(tmp_path / "run.mcap", read_deployment(DARPA3 / "deployment.json"), "darpa-grid")
+    writer.flush()
+
+    def no_room():
+        raise OSError(28, "No space left on device")
+
+    writer.close = writer.abandon = no_room
+    statuses = []
+    with caplog.at_level("ERROR", logger="bintrack"):
+        DiskFull("stop", statuses.append).end(writer, OSError(28, "No space left on device"))
+    (line,) = [r.getMessage() for r in caplog.records]
+    assert re.fullmatch(r"recorder: cannot write .*run\.mcap: No space left on device \(errno 28\); stopped: the file "
+                        r"is not finalised \(its ending could not be written either: No space left on device "
+                        r"\(errno 28\), \d+ bytes free\): it holds a readable prefix, no message; none lost", line), line
+    assert statuses == [3]

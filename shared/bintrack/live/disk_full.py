@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import os
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 from bintrack.live.recording import RecordingWriter
 
@@ -24,6 +26,15 @@ RETRY = 1.0  # s between two tries while paused
 MODES = ("stop", "pause")
 
 log = logging.getLogger("bintrack")
+
+
+def _free_bytes(path: Path) -> int | str:
+    """The bytes free to an unprivileged writer on ``path``'s file system, or "?"."""
+    try:
+        stat = os.statvfs(path.parent)
+    except OSError:
+        return "?"
+    return stat.f_bavail * stat.f_frsize
 
 
 def _reason(exc: OSError) -> str:
@@ -90,7 +101,8 @@ class DiskFull:
             try:
                 writer.abandon()
                 kept = f"finalised without its index, with {held}; {lost}"
-            except OSError:
-                kept = f"not finalised: it holds a readable prefix, {held}; {lost}"
+            except OSError as ending:
+                kept = (f"not finalised (its ending could not be written either: {_reason(ending)}, "
+                        f"{_free_bytes(writer.path)} bytes free): it holds a readable prefix, {held}; {lost}")
         log.error("recorder: cannot write %s: %s; stopped: the file is %s", writer.path, _reason(exc), kept)
         self._give_up(EXIT_WRITE_FAILED)
