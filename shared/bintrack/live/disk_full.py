@@ -14,27 +14,17 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import os
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 from bintrack.live.recording import RecordingWriter
+from bintrack.live.spooled_file import free_bytes
 
 EXIT_WRITE_FAILED = 3  # the recorder's exit status when it could not write its file
 RETRY = 1.0  # s between two tries while paused
 MODES = ("stop", "pause")
 
 log = logging.getLogger("bintrack")
-
-
-def _free_bytes(path: Path) -> int | str:
-    """The bytes free to an unprivileged writer on ``path``'s file system, or "?"."""
-    try:
-        stat = os.statvfs(path.parent)
-    except OSError:
-        return "?"
-    return stat.f_bavail * stat.f_frsize
 
 
 def _reason(exc: OSError) -> str:
@@ -102,7 +92,11 @@ class DiskFull:
                 writer.abandon()
                 kept = f"finalised without its index, with {held}; {lost}"
             except OSError as ending:
+                try:
+                    free = free_bytes(writer.path.parent)
+                except OSError:
+                    free = "?"
                 kept = (f"not finalised (its ending could not be written either: {_reason(ending)}, "
-                        f"{_free_bytes(writer.path)} bytes free): it holds a readable prefix, {held}; {lost}")
+                        f"{free} bytes free): it holds a readable prefix, {held}; {lost}")
         log.error("recorder: cannot write %s: %s; stopped: the file is %s", writer.path, _reason(exc), kept)
         self._give_up(EXIT_WRITE_FAILED)

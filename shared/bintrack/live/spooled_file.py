@@ -21,6 +21,13 @@ RESERVE_SHARE = 8  # … but at most this fraction of the space free when the fi
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
+def free_bytes(folder: Path) -> int:
+    """The bytes an unprivileged writer may still write on ``folder``'s file system (OSError if
+    it cannot be asked)."""
+    stat = os.statvfs(folder)
+    return stat.f_bavail * stat.f_frsize
+
+
 class SpooledFile:
     """A file at ``path`` (created, truncated) written through a memory spool, with a reserve
     of ``reserve`` bytes (0: none; None: :data:`RESERVE_MAX`, at most 1/RESERVE_SHARE of the
@@ -34,8 +41,7 @@ class SpooledFile:
         self.reserve_path: Path | None = None
         if reserve != 0:
             if reserve is None:
-                free = os.statvfs(self.path.parent)
-                reserve = max(4096, min(RESERVE_MAX, free.f_bavail * free.f_frsize // RESERVE_SHARE))
+                reserve = max(4096, min(RESERVE_MAX, free_bytes(self.path.parent) // RESERVE_SHARE))
             self.reserve_path = self.path.with_name(f".{self.path.name}.reserve")
             fd = os.open(self.reserve_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
             try:
