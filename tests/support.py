@@ -198,8 +198,10 @@ class FakeBus:
             self.seen.append((str(sample.key_expr), sample.payload.to_bytes()))
 
     def put(self, key: str, payload) -> None:
-        """Publish ``payload`` (bytes, or a message to encode) on ``key``, as replay would."""
-        self.session.put(key, payload if isinstance(payload, bytes) else encode(payload), attachment=self.control)
+        """Publish ``payload`` (bytes, or a message to encode) on ``key``, as replay would: blocking
+        where a queue is full (Zenoh's default drops the put there)."""
+        self.session.put(key, payload if isinstance(payload, bytes) else encode(payload), attachment=self.control,
+                         congestion_control=zenoh.CongestionControl.BLOCK)
 
     def messages(self, kind: str, start: int = 0) -> list[tuple[str, object]]:
         """(key, decoded message) of every message of key kind ``kind`` seen, from index ``start``."""
@@ -233,7 +235,8 @@ class FakeBus:
         ``proc``, the service's process: it must not end meanwhile."""
         for upstream in self.played:
             self.session.put(self.keys.progress(upstream, "test"), encode(Clock(t=t, sent=sent)),
-                             attachment=control_attachment(upstream, "test"))
+                             attachment=control_attachment(upstream, "test"),
+                             congestion_control=zenoh.CongestionControl.BLOCK)
         self.put(self.keys.clock(), Clock(t=t))
 
         def reported() -> bool:
