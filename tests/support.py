@@ -197,10 +197,12 @@ class FakeBus:
         with self.lock:
             self.seen.append((str(sample.key_expr), sample.payload.to_bytes()))
 
-    def put(self, key: str, payload) -> None:
-        """Publish ``payload`` (bytes, or a message to encode) on ``key``, as replay would: blocking
-        where a queue is full (Zenoh's default drops the put there)."""
-        self.session.put(key, payload if isinstance(payload, bytes) else encode(payload), attachment=self.control,
+    def put(self, key: str, payload, attachment: bytes | None = None) -> None:
+        """Publish ``payload`` (bytes, or a message to encode) on ``key``, as replay would (with
+        ``attachment``, as that sender would): blocking where a queue is full (Zenoh's default
+        drops the put there)."""
+        self.session.put(key, payload if isinstance(payload, bytes) else encode(payload),
+                         attachment=self.control if attachment is None else attachment,
                          congestion_control=zenoh.CongestionControl.BLOCK)
 
     def messages(self, kind: str, start: int = 0) -> list[tuple[str, object]]:
@@ -234,9 +236,7 @@ class FakeBus:
         handled everything up to ``t`` first (a played sensor agent: having sent ``sent``).
         ``proc``, the service's process: it must not end meanwhile."""
         for upstream in self.played:
-            self.session.put(self.keys.progress(upstream, "test"), encode(Clock(t=t, sent=sent)),
-                             attachment=control_attachment(upstream, "test"),
-                             congestion_control=zenoh.CongestionControl.BLOCK)
+            self.put(self.keys.progress(upstream, "test"), Clock(t=t, sent=sent), control_attachment(upstream, "test"))
         self.put(self.keys.clock(), Clock(t=t))
 
         def reported() -> bool:

@@ -336,7 +336,7 @@ def test_raw_samples_a_restarted_replay_sends_again_are_taken_once(tmp_path, zen
     bus.tick(1.5, "recorder", recorder)
     for sample in (RawSample(t=1.0, sensor="n0", value=1),  # had arrived
                    RawSample(t=2.0, sensor="n0", value=0), RawSample(t=2.0, sensor="n1", value=1)):  # had not
-        bus.session.put(bus.keys.raw(sample.sensor), encode(sample), attachment=RESENT)
+        bus.put(bus.keys.raw(sample.sensor), sample, RESENT)
     bus.tick(2.5, "sensor_agent", agent)
     bus.tick(2.5, "recorder", recorder)
     assert [(m.t, m.sensor, m.value) for _, m in bus.messages("transition")] == [
@@ -396,8 +396,7 @@ def test_a_restarted_replay_sends_the_samples_of_its_last_ticks_again_first(tmp_
         # once the first tick is out, the replay has seen the played agent (it waits for one):
         # the agent has handled everything up to 20 s, so the replay goes on to 26 s, then waits
         wait_until(lambda: any(kind == "clock" for kind, _, _ in seen), "the replay's first tick", logs=[replay])
-        bus.session.put(bus.keys.progress("sensor_agent", "test"), encode(Clock(t=20.0)),
-                        attachment=control_attachment("sensor_agent", "test"))
+        bus.put(bus.keys.progress("sensor_agent", "test"), Clock(t=20.0), control_attachment("sensor_agent", "test"))
         wait_until(lambda: any(float(ack) >= 20 for ack in re.findall(r"waiting for progress >= ([\d.]+)", replay.log)),
                    "the replay to wait for progress past 20 s", logs=[replay])
         replay.proc.send_signal(signal.SIGKILL)
