@@ -137,16 +137,17 @@ def load_case(name: str, path: Path) -> Case:
 # --------------------------------------------------------------------------- ours
 
 
-def plain_reports(dataset) -> list:
+def plain_reports(dataset, evidence_reference: float | None = None) -> list:
     """Stone Soup's input on ``dataset``: the fusion's reports (``PositionReports`` per scan)
     without the track aid, which Stone Soup cannot give (so without the copies made for
-    unresolved targets either), and with the bars in fixed nats, as the peers were tuned on them."""
+    unresolved targets either), and with the bars in fixed nats, as the peers were tuned on them
+    (``evidence_reference``: bars that grow with the sensors' evidence, as ours, instead)."""
     from bintrack.bus_payloads import PositionReports
     from bintrack.pipeline import run_tracker
     from bintrack.trackers.multi.fusion_config import FusionConfig
     from bintrack.trackers.multi.tracker import MCMCDATracker
 
-    plain = MCMCDATracker(dataset.deployment, FusionConfig(track_aided=False, evidence_reference=None))
+    plain = MCMCDATracker(dataset.deployment, FusionConfig(track_aided=False, evidence_reference=evidence_reference))
     return [out for out in run_tracker(dataset, plain) if isinstance(out, PositionReports)]
 
 

@@ -27,6 +27,9 @@ the same mix of settings). On each grid:
 * so are JIPDA, MFA and a labelled GM-PHD built from Stone Soup's parts
   (``benchmarks/stonesoup_peers.py``: the same input; a first grid over the pd each assumes,
   then one parameter at a time);
+* the peers' input has the fusion's bars in fixed nats, as they were first tuned;
+  ``--peer-bars scaled`` gives them ours, which grow with the sensors' evidence (docs/peers.md
+  compares the two);
 * ``--conditions N``: N grids per row of harder conditions (``benchmarks/multi_conditions.py``),
   ours with its defaults beside each Stone Soup tracker with the setting chosen above.
 
@@ -251,11 +254,12 @@ def run_ours(args) -> tuple:
         case.config = tracker.mcmcda.config
         scores.append(vs.score(tracks, case, [whole / max(len(reports), 1)]))
     if variant == "default":
-        case.plain_reports = vs.plain_reports(data)
+        case.plain_reports = vs.plain_reports(data, PEER_BARS)
     return name, scores, case
 
 
 SCORE_CACHE: Path | None = None  # scores of Stone Soup runs already made (set by main; None: none kept)
+PEER_BARS: float | None = None  # the peers' fusion: bars in fixed nats (None), or scaled from this reference (--peer-bars)
 PEER_SOURCES = ("mcmcda_vs_stonesoup.py", "stonesoup_peers.py", "peer_gating.py", "peer_jipda.py", "peer_mfa.py",
                 "peer_phd.py")
 
@@ -375,6 +379,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--conditions", type=int, default=0, metavar="N",
                         help="also N grids per harder condition (benchmarks/multi_conditions.py; default none)")
     parser.add_argument("--conditions-only", action="store_true", help="only the conditions (needs --tuned)")
+    parser.add_argument("--peer-bars", choices=("fixed", "scaled"), default="fixed",
+                        help="the Stone Soup trackers' input: the fusion's reports with bars in fixed nats (default, "
+                        "as they were tuned) or with ours, which grow with the sensors' evidence")
     parser.add_argument("--fresh", action="store_true",
                         help="run every Stone Soup setting again (default: reuse the scores kept under --cache)")
     parser.add_argument("--conditions-plot", type=Path, default=DEFAULT_CONDITIONS_PLOT,
@@ -387,6 +394,10 @@ def main(argv: list[str] | None = None) -> int:
         print("multi_target: --conditions-only needs --tuned FILE and --conditions N", file=sys.stderr)
         return 2
     kinds = args.stonesoup or list(KINDS)
+    if "MFA" in kinds and not args.ours_only and importlib.util.find_spec("ortools") is None:
+        print("multi_target: the MFA peer needs ortools, which is not installed (pip install -e '.[bench]'; "
+              "or leave it out: --stonesoup GNN --stonesoup JPDA …)", file=sys.stderr)
+        return 2
     per_half = args.grids or (3 if args.quick else 8)
     if args.only and args.ours_only:
         parser.error("--only runs ours on both halves; --ours-only is the tuning half: give one of them")
@@ -414,8 +425,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"    {name}: {command(spec)}")
     print(flush=True)
 
-    global SCORE_CACHE
+    global SCORE_CACHE, PEER_BARS
     SCORE_CACHE = None if args.fresh else args.cache / "scores"
+    from bintrack.trackers.multi.fusion_config import FusionConfig
+    PEER_BARS = FusionConfig().evidence_reference if args.peer_bars == "scaled" else None
     ctx = multiprocessing.get_context("fork")  # the workers see SCORE_CACHE
     with ctx.Pool(args.jobs) as pool:
         def progress(label, jobs, fn):
