@@ -429,7 +429,7 @@ def main(argv: list[str] | None = None) -> int:
     SCORE_CACHE = None if args.fresh else args.cache / "scores"
     from bintrack.trackers.multi.fusion_config import FusionConfig
     PEER_BARS = FusionConfig().evidence_reference if args.peer_bars == "scaled" else None
-    ctx = multiprocessing.get_context("fork")  # the workers see SCORE_CACHE
+    ctx = multiprocessing.get_context("fork")  # the workers see SCORE_CACHE and PEER_BARS
     with ctx.Pool(args.jobs) as pool:
         def progress(label, jobs, fn):
             out = []
