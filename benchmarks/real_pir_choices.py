@@ -54,6 +54,12 @@ VARIANTS = {
     "track kept 8 missed scans, not 5": ({}, {"max_misses": 8}),
     "entries from one report (1 m, 4 nats)": ({}, {"entry_depth": 1.0, "entry_gain": 4.0}),
     "exits at the walls (1 m)": ({}, {"exit_depth": 1.0}),
+    "16 chains, not 8": ({}, {"chains": 16}),
+    "32 chains": ({}, {"chains": 32}),
+    "1000 iterations per chain, not 500": ({}, {"n_mc": 1000}),
+    "16 chains of 1000": ({}, {"chains": 16, "n_mc": 1000}),
+    "bars scaled with the sensors' evidence (1.7 nats)": ({"evidence_reference": 1.7}, {}),
+    "pd and false-report rate estimated online (50 scans)": ({}, {"adapt_rates": 50}),
 }
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
 
