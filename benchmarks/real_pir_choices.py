@@ -60,6 +60,8 @@ VARIANTS = {
     "16 chains of 1000": ({}, {"chains": 16, "n_mc": 1000}),
     "bars scaled with the sensors' evidence (1.7 nats)": ({"evidence_reference": 1.7}, {}),
     "pd and false-report rate estimated online (50 scans)": ({}, {"adapt_rates": 50}),
+    "a new target from one detection (n_d 1, not 2)": ({"threshold": 1}, {}),
+    "n_d 1, and a new target at 4 nats, not 2": ({"threshold": 1, "min_gain": 4.0}, {}),
 }
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
 
