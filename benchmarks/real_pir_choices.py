@@ -62,6 +62,11 @@ VARIANTS = {
     "pd and false-report rate estimated online (50 scans)": ({}, {"adapt_rates": 50}),
     "a new target from one detection (n_d 1, not 2)": ({"threshold": 1}, {}),
     "n_d 1, and a new target at 4 nats, not 2": ({"threshold": 1, "min_gain": 4.0}, {}),
+    "a shared copy for a hidden track within 1.5 ranges of the report, not 1": ({"shared_gap": 1.5}, {}),
+    "the same within 2 ranges": ({"shared_gap": 2.0}, {}),
+    "the same within 3 ranges": ({"shared_gap": 3.0}, {}),
+    "shared copies for 4 scans without a report, not 2": ({"shared_unreported": 4}, {}),
+    "within 2 ranges, for 4 scans": ({"shared_gap": 2.0, "shared_unreported": 4}, {}),
 }
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
 
