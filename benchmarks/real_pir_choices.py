@@ -67,6 +67,7 @@ VARIANTS = {
     "the same within 3 ranges": ({"shared_gap": 3.0}, {}),
     "shared copies for 4 scans without a report, not 2": ({"shared_unreported": 4}, {}),
     "within 2 ranges, for 4 scans": ({"shared_gap": 2.0, "shared_unreported": 4}, {}),
+    "a track shown 2 scans past its last report, not 1": ({}, {"coast": 2}),
 }
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
 
