@@ -68,6 +68,8 @@ VARIANTS = {
     "shared copies for 4 scans without a report, not 2": ({"shared_unreported": 4}, {}),
     "within 2 ranges, for 4 scans": ({"shared_gap": 2.0, "shared_unreported": 4}, {}),
     "a track shown 2 scans past its last report, not 1": ({}, {"coast": 2}),
+    "soft footprints of 0.4 R for the reports, not R/2": ({"soft_spread": 0.4}, {}),
+    "soft footprints of 0.6 R": ({"soft_spread": 0.6}, {}),
 }
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
 
