@@ -12,7 +12,7 @@
   svm, ppr, motion-rw).
 
 With ``--region NAME`` (a region of the deployment's ``regions``) it takes only the transitions
-of that region's sensors and of those within a border band two sensing ranges wide
+of that region's sensors and of those within a border band three sensing ranges wide
 (``--band``), subscribing to those sensors' transitions only (with the default band; the
 agents count them for it, DESIGN §11), and publishes on ``region/<NAME>/{fusion/reports,tracks}``
 (local track ids) with ``region/<NAME>/progress`` after each tick and a ``region/<NAME>/alive``
@@ -164,7 +164,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--region", metavar="NAME", help="serve this region of the deployment's regions only")
     parser.add_argument("--band", type=positive_float, metavar="D",
                         help="with --region: width of the border band whose sensors are taken too, units "
-                        "(default: two of each sensor's sensing ranges)")
+                        "(default: three of each sensor's sensing ranges)")
     add_tracker_arguments(parser)
     parser.add_argument("--id", help="instance id (default: host-pid)")
     add_bus_arguments(parser)

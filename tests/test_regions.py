@@ -7,7 +7,8 @@ import json
 
 import pytest
 
-from bintrack.formats import FormatError, parse_deployment
+from bintrack.evaluation.track_agreement import agreement
+from bintrack.formats import FormatError, TrackRow, parse_deployment
 from bintrack.keys import Keys, parse_key
 from bintrack.bus_payloads import Track, TrackSet
 from bintrack.deployment_model import Region
@@ -46,9 +47,9 @@ def test_rectangles_and_polygons_own_every_sensor_once_and_take_a_border_band():
     west, east = regions.own_sensors("west"), regions.own_sensors("east")
     assert sorted(west + east) == sorted(s.id for s in regions.deployment.sensors)  # a partition
     assert all(regions.deployment.by_id()[s].x <= 27.5 for s in west)
-    taken = regions.taken_sensors("west")  # within two ranges (16 m) of x ≤ 27.5
+    taken = regions.taken_sensors("west")  # within three ranges (24 m) of x ≤ 27.5
     assert set(west) < set(taken)
-    assert {regions.deployment.by_id()[s].x for s in taken} == {5.0 * i for i in range(9)}  # x ≤ 40 < 43.5
+    assert {regions.deployment.by_id()[s].x for s in taken} == {5.0 * i for i in range(11)}  # x ≤ 50 < 51.5
     assert set(regions.taken_sensors("west", band=0.0)) == set(west)
     assert regions.owner(27.5, 10) == "west" and regions.owner(27.6, 10) == "east"
     assert regions.owner(-3, -3) == "west"  # outside every region: the nearest
@@ -292,3 +293,21 @@ def test_a_region_silent_behind_a_stale_token_is_taken_for_gone_until_it_reports
     assert departures.tick(25.0, 0.5) == [] and departures.tick(27.5, 0.5) == ["east"]  # given up after the hold
     assert not departures.reports("west")
     assert departures.reports("east") and not departures.reports("east")  # back, once
+
+
+def test_agreement_counts_switches_as_clear_mot_does():
+    """Two people walking 0.8 m apart, tracked by both outputs under steady identities: noise
+    of 0.5 m puts the other output's tracks nearer the wrong reference track at some scans. Pairs
+    decided afresh each scan count those as switches; CLEAR MOT's kept pairs do not. An identity
+    that ends and comes back under another one is a switch either way."""
+    reference, other = [], []
+    for k in range(20):
+        t = 0.5 * k
+        reference += [TrackRow(t, 1, float(k), 0.0, 2.0, 0.0), TrackRow(t, 2, float(k), 0.8, 2.0, 0.0)]
+        wobble = 0.5 if k % 3 == 0 else 0.0  # every third scan the two tracks lean into each other
+        later = 7 if k >= 12 else 5  # the second person's identity in the other output changes at scan 12
+        other += [TrackRow(t, 4, float(k), wobble, 2.0, 0.0), TrackRow(t, later, float(k), 0.8 - wobble, 2.0, 0.0)]
+    result = agreement(reference, other)
+    assert result.count_equal == result.scans == 20 and result.within(0.5) == 1.0
+    assert result.switches == 1  # identity 5 → 7, once
+    assert result.switches_redecided > result.switches  # the wobbles counted as well

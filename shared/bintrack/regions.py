@@ -1,7 +1,6 @@
 """Regions of a deployment (DESIGN §9, several machines): which region owns a point, which
-sensors a region's base station takes (its own plus a border band, two sensing ranges wide by
-default),
-and a field cut into a grid of rectangles. Pure: shapely geometry, no I/O.
+sensors a region's base station takes (its own plus a border band, three sensing ranges wide by
+default), and a field cut into a grid of rectangles. Pure: shapely geometry, no I/O.
 
 A deployment without ``regions`` is one region, named :data:`WHOLE`, covering its field.
 """
@@ -79,15 +78,19 @@ class RegionMap:
         return [s.id for s in self.deployment.sensors if (self.home(s) or self.names[0]) == name]
 
     def band(self, sensor) -> float:
-        """How far outside its region a sensor is still taken by default: two sensing ranges (0
-        for a sensor without one). The fusion places a target in the cells within a range of
+        """How far outside its region a sensor is still taken by default: three sensing ranges
+        (0 for a sensor without one). The fusion places a target in the cells within a range of
         it from every sensor covering those cells, up to two ranges away: with a band one range
-        wide, a target near the border is placed from a part of them and lands metres off."""
-        return 2.0 * float(getattr(sensor, "range", 0.0) or 0.0)
+        wide, a target near the border is placed from a part of them and lands metres off. The
+        third range gives a person coming from a neighbouring region a track with some history
+        before they cross the border (three chosen over two on ``benchmarks/region_merge.py``'s
+        tuning seeds 10–13: the merge agrees with one base station over the whole field more
+        closely in count, positions and identities; docs/regions.md)."""
+        return 3.0 * float(getattr(sensor, "range", 0.0) or 0.0)
 
     def taken_sensors(self, name: str, band: float | None = None) -> list[str]:
         """Ids of the sensors region ``name``'s base station takes: those inside it and those
-        within ``band`` of it (default: :meth:`band`, two of each sensor's sensing ranges);
+        within ``band`` of it (default: :meth:`band`, three of each sensor's sensing ranges);
         sensors with no position are always taken."""
         shape = self.shapes[self.check(name)]
         taken = []

@@ -21,7 +21,10 @@ class Agreement:
     matched to more than one identity of the other output (an identity lost); ``joined``:
     identities of the other output matched to more than one reference track; ``switches``: times
     a reference track, kept under one identity, was matched to another identity of the other
-    output than at its previous match (an identity lost where the reference kept it)."""
+    output than at its previous match (an identity lost where the reference kept it), counted
+    as CLEAR MOT counts mismatches; ``switches_redecided``: the same with the pairs decided
+    afresh at every scan, which also counts two people within a metre or two of each other
+    whose tracks noise puts nearer the other's."""
 
     scans: int = 0
     count_equal: int = 0
@@ -30,6 +33,7 @@ class Agreement:
     split: dict[int, set[int]] = field(default_factory=dict)
     joined: dict[int, set[int]] = field(default_factory=dict)
     switches: int = 0
+    switches_redecided: int = 0
 
     @property
     def max_gap(self) -> float:
@@ -42,12 +46,19 @@ class Agreement:
     def summary(self) -> str:
         return (f"{self.count_equal}/{self.scans} scans with the same count; matched pairs {len(self.gaps)}, "
                 f"max gap {self.max_gap:.3f}, {100 * self.within(0.5):.1f}% within 0.5; "
-                f"{self.switches} identity switches ({len(self.split)} split, {len(self.joined)} joined)")
+                f"{self.switches} identity switches ({self.switches_redecided} with the pairs decided afresh at every scan; "
+                f"{len(self.split)} split, {len(self.joined)} joined)")
 
 
 def agreement(reference: Iterable[TrackRow], other: Iterable[TrackRow], gate: float = 5.0) -> Agreement:
     """Compare ``other`` with ``reference`` scan by scan (rows grouped by ``t``): counts, and the
-    tracks paired by least total distance (pairs farther than ``gate`` units left unpaired)."""
+    tracks paired by least total distance (pairs farther than ``gate`` units left unpaired).
+
+    The gaps are of those pairs. Identity switches are counted as CLEAR MOT counts mismatches
+    (Bernardin and Stiefelhagen, 2008; as :func:`bintrack.evaluation.metrics.multi_target_scores`
+    does against the truth): at each scan a reference track keeps the identity of ``other`` it
+    had while that track is still within ``gate`` and not kept by another; the rest are paired
+    by least total distance."""
     by_t: dict[float, tuple[list[TrackRow], list[TrackRow]]] = defaultdict(lambda: ([], []))
     for row in reference:
         by_t[round(row.t, 6)][0].append(row)
@@ -57,6 +68,7 @@ def agreement(reference: Iterable[TrackRow], other: Iterable[TrackRow], gate: fl
     ids: dict[int, set[int]] = defaultdict(set)
     back: dict[int, set[int]] = defaultdict(set)
     last: dict[int, int] = {}
+    last_redecided: dict[int, int] = {}
     for t in sorted(by_t):
         ref, oth = by_t[t]
         result.scans += 1
@@ -71,10 +83,35 @@ def agreement(reference: Iterable[TrackRow], other: Iterable[TrackRow], gate: fl
             if cost[i, j] <= gate:
                 result.gaps.append(float(cost[i, j]))
                 ids[ref[i].track].add(oth[j].track)
-                if last.get(ref[i].track, oth[j].track) != oth[j].track:
-                    result.switches += 1
-                last[ref[i].track] = oth[j].track
+                if last_redecided.get(ref[i].track, oth[j].track) != oth[j].track:
+                    result.switches_redecided += 1
+                last_redecided[ref[i].track] = oth[j].track
                 back[oth[j].track].add(ref[i].track)
+        for i, j in _kept_pairs(cost, ref, oth, last, gate).items():
+            if last.get(ref[i].track, oth[j].track) != oth[j].track:
+                result.switches += 1
+            last[ref[i].track] = oth[j].track
     result.split = {k: v for k, v in ids.items() if len(v) > 1}
     result.joined = {k: v for k, v in back.items() if len(v) > 1}
     return result
+
+
+def _kept_pairs(cost: np.ndarray, ref: list[TrackRow], oth: list[TrackRow], last: dict[int, int],
+                gate: float) -> dict[int, int]:
+    """Row of ``ref`` → row of ``oth`` at one scan, as CLEAR MOT pairs them: each reference
+    track keeps its previous partner while that is within ``gate`` (units) and not yet taken,
+    then the rest by least total distance within ``gate``."""
+    column = {b.track: j for j, b in enumerate(oth)}
+    pairs: dict[int, int] = {}
+    for i, a in enumerate(ref):
+        j = column.get(last.get(a.track, -1))
+        if j is not None and cost[i, j] <= gate and j not in pairs.values():
+            pairs[i] = j
+    rows = [i for i in range(len(ref)) if i not in pairs]
+    columns = [j for j in range(len(oth)) if j not in pairs.values()]
+    if rows and columns:
+        sub = cost[np.ix_(rows, columns)]
+        for a, b in zip(*linear_sum_assignment(sub)):
+            if sub[a, b] <= gate:
+                pairs[rows[a]] = columns[b]
+    return pairs
