@@ -395,7 +395,7 @@ def multi_target_scores(rows: Sequence[TrackRow], paths: Mapping[str, TruthPath]
         present = [k for k, path in paths.items() if path.exists(t)]
         truths = np.array([paths[k].position(t) for k in present]).reshape(-1, 2)
         score = gospa([(r.x, r.y) for r in group], truths, c, p)
-        for target, track in _identity_pairs(group, present, truths, last_track, c).items():
+        for target, track in identity_pairs(group, present, truths, last_track, c).items():
             if target in last_track and last_track[target] != track:
                 switches += 1
             last_track[target] = track
@@ -403,10 +403,12 @@ def multi_target_scores(rows: Sequence[TrackRow], paths: Mapping[str, TruthPath]
     return MultiTargetScores(c, p, tuple(scans), switches)
 
 
-def _identity_pairs(group: Sequence[TrackRow], present: list[str], truths: np.ndarray,
-                    last_track: Mapping[str, int], c: float) -> dict[str, int]:
-    """Target → track id at one scan: kept correspondences first, then an optimal assignment
-    of the rest within ``c`` (units)."""
+def identity_pairs(group: Sequence[TrackRow], present: Sequence, truths: np.ndarray,
+                   last_track: Mapping, c: float) -> dict:
+    """Target → track id at one scan, as CLEAR MOT pairs them: each target of ``present`` (at
+    ``truths``, units) keeps the track of ``group`` it had (``last_track``) while that track is
+    within ``c`` (units) and not kept by another target; the rest by an optimal assignment
+    within ``c``."""
     if not group or not present:
         return {}
     d = _distances(np.array([(r.x, r.y) for r in group]), truths)

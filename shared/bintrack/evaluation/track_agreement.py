@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from bintrack.evaluation.metrics import identity_pairs
 from bintrack.formats import TrackRow
 
 
@@ -87,31 +88,12 @@ def agreement(reference: Iterable[TrackRow], other: Iterable[TrackRow], gate: fl
                     result.switches_redecided += 1
                 last_redecided[ref[i].track] = oth[j].track
                 back[oth[j].track].add(ref[i].track)
-        for i, j in _kept_pairs(cost, ref, oth, last, gate).items():
-            if last.get(ref[i].track, oth[j].track) != oth[j].track:
+        kept = identity_pairs(oth, [r.track for r in ref], np.array([(r.x, r.y) for r in ref]), last, gate)
+        for track, partner in kept.items():
+            if last.get(track, partner) != partner:
                 result.switches += 1
-            last[ref[i].track] = oth[j].track
+            last[track] = partner
     result.split = {k: v for k, v in ids.items() if len(v) > 1}
     result.joined = {k: v for k, v in back.items() if len(v) > 1}
     return result
 
-
-def _kept_pairs(cost: np.ndarray, ref: list[TrackRow], oth: list[TrackRow], last: dict[int, int],
-                gate: float) -> dict[int, int]:
-    """Row of ``ref`` → row of ``oth`` at one scan, as CLEAR MOT pairs them: each reference
-    track keeps its previous partner while that is within ``gate`` (units) and not yet taken,
-    then the rest by least total distance within ``gate``."""
-    column = {b.track: j for j, b in enumerate(oth)}
-    pairs: dict[int, int] = {}
-    for i, a in enumerate(ref):
-        j = column.get(last.get(a.track, -1))
-        if j is not None and cost[i, j] <= gate and j not in pairs.values():
-            pairs[i] = j
-    rows = [i for i in range(len(ref)) if i not in pairs]
-    columns = [j for j in range(len(oth)) if j not in pairs.values()]
-    if rows and columns:
-        sub = cost[np.ix_(rows, columns)]
-        for a, b in zip(*linear_sum_assignment(sub)):
-            if sub[a, b] <= gate:
-                pairs[rows[a]] = columns[b]
-    return pairs
