@@ -8,8 +8,7 @@ field, mcmcda per region merged (``bintrack track --regions``), and the noise fl
 comparison: the whole field again with another mcmcda seed; with every sensor's position moved
 by up to 1 cm; with its sensors listed in another order; less the one sensor that never
 detected anything, farthest from those that did; and less the four sensors nearest its corners
-(what a small change of the data alone does: no base station fed another set of sensors can
-agree with the whole field more closely than these do). Per seed
+(what a small change of its input alone does to the whole field's own answer). Per seed
 and as mean ± standard deviation: scans with the same count of tracks, share of paired tracks
 within 0.5 m, the largest gap, identity switches (a whole-field track, kept under one identity,
 paired with another merged identity than at its previous scan: an identity lost at a border;
