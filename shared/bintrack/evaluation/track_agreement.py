@@ -96,4 +96,3 @@ def agreement(reference: Iterable[TrackRow], other: Iterable[TrackRow], gate: fl
     result.split = {k: v for k, v in ids.items() if len(v) > 1}
     result.joined = {k: v for k, v in back.items() if len(v) > 1}
     return result
-
