@@ -15,7 +15,8 @@ Never r1-medium (the sequence reported by ``benchmarks/real_sensors.py``). The s
   r1-easy walks a second time, mirrored across the room (x → 8.6 − x) and 50 s later (wrapping
   round), 5.1 people on average and up to 7, as crowded as r1-medium is said to be.
 
-Each variant changes one setting of :mod:`bintrack.trackers.multi.pir_settings`; printed per set:
+Each variant changes one setting of :mod:`bintrack.trackers.multi.pir_settings`, or gives the
+tracks a fixed lag (:mod:`bintrack.trackers.multi.fixed_lag`); printed per set:
 mean MOTA, count error, GOSPA (c = 2 m), FP, FN, identity switches (CLEAR MOT at 1.5 m, greedy,
 area [0, 8] × [0, 14] m, as ``benchmarks/real_sensors.py``).
 """
@@ -70,7 +71,9 @@ VARIANTS = {
     "a track shown 2 scans past its last report, not 1": ({}, {"coast": 2}),
     "soft footprints of 0.4 R for the reports, not R/2": ({"soft_spread": 0.4}, {}),
     "soft footprints of 0.6 R": ({"soft_spread": 0.6}, {}),
+    **{f"fixed lag {n} scans ({n / 2:g} s)": ({}, {}, n) for n in (2, 4, 6, 8, 10)},
 }
+"""name → (FusionConfig changes, MCMCDAConfig changes[, fixed lag in scans: ``bintrack track --lag``])"""
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
 
 
@@ -150,6 +153,7 @@ def score(variant: str, dataset: Path, seed: int) -> dict:
     from bintrack.evaluation.eval_report import evaluate
     from bintrack.formats import open_dataset, write_tracks
     from bintrack.pipeline import output_rows, run_tracker
+    from bintrack.trackers.multi.fixed_lag import FixedLagSmoother
     from bintrack.trackers.multi.fusion_config import FusionConfig
     from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
     from bintrack.trackers.multi.pir_settings import pir_settings
@@ -157,8 +161,10 @@ def score(variant: str, dataset: Path, seed: int) -> dict:
 
     ds = open_dataset(dataset)
     fusion, config = pir_settings(ds.deployment, FusionConfig(), MCMCDAConfig())
-    f, c = VARIANTS[variant]
+    f, c, *lag = VARIANTS[variant]
     tracker = MCMCDATracker(ds.deployment, fusion=replace(fusion, **f), config=replace(config, seed=seed, **c))
+    if lag:
+        tracker = FixedLagSmoother(tracker, *lag)
     with tempfile.TemporaryDirectory() as tmp:
         tracks = Path(tmp) / "tracks.csv"
         write_tracks(tracks, output_rows(run_tracker(ds, tracker)))

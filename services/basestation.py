@@ -63,6 +63,8 @@ class Basestation(TransitionConsumer):
         if deployment is None:
             return
         network, region = deployment, self.args.region
+        if region is not None and self.args.lag is not None:
+            raise CommandError("--lag smooths one base station's tracks; the merge of regions takes them online")
         if region is not None:
             from bintrack.regions import RegionMap  # shapely: loaded only for a region
 

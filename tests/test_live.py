@@ -93,6 +93,12 @@ def test_live_equals_offline_for_mcmcda_on_darpa_grid_3(tmp_path):
     live_and_offline(DARPA3, "mcmcda", tmp_path, exports=("tracks",))
 
 
+def test_live_equals_offline_for_mcmcda_with_a_fixed_lag(tmp_path):
+    """`--lag`: the base station gives each scan's tracks 4 scans late, smoothed, and the rest
+    at the end of the replay, as `track --lag` does."""
+    live_and_offline(DARPA3, "mcmcda", tmp_path, exports=("tracks",), options=("--lag", "4"))
+
+
 def test_up_of_a_recording_tracks_its_raw_samples_again_and_records_each_row_once(tmp_path):
     """`up RUN.mcap` replays the recording's raw samples (and truth), not its transitions and
     track sets, which the stack makes again: the offline rows, none twice, no duplicate dropped."""

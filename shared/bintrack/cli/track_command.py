@@ -96,6 +96,8 @@ def region_trackers(deployment, options, band: float | None = None) -> tuple[dic
 def run_regions_command(args: argparse.Namespace, dataset) -> int:
     if args.tracker != "mcmcda":
         raise CommandError(f"--regions runs mcmcda per region; --tracker {args.tracker} cannot")
+    if getattr(args, "lag", None) is not None:
+        raise CommandError("--lag smooths one base station's tracks; the merge of --regions takes them online")
     try:
         trackers, taken, regions = region_trackers(dataset.deployment, tracker_options(args))
     except ValueError as exc:

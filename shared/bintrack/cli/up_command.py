@@ -343,6 +343,8 @@ def _region_source(args: argparse.Namespace) -> tuple[tempfile.TemporaryDirector
 
     if args.tracker != "mcmcda":
         raise CommandError(f"--regions runs mcmcda at the region base stations; --tracker {args.tracker} cannot")
+    if getattr(args, "lag", None) is not None:
+        raise CommandError("--lag smooths one base station's tracks; the merge of --regions takes them online")
     if args.regions < 1:
         raise CommandError(f"--regions must be at least 1, got {args.regions}")
     if args.source is None or Path(args.source).suffix == ".mcap":

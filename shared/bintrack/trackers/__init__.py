@@ -36,6 +36,9 @@ class TrackerOptions:
     """mcmcda: sliding-window length in scans (None = the default)"""
     estimates: str | None = None
     """mcmcda: a peer tracker whose estimates join the fused position reports"""
+    lag: int | None = None
+    """mcmcda: give each scan's tracks this many scans late, smoothed with the scans after it
+    (:mod:`bintrack.trackers.multi.fixed_lag`); None = online, each scan's tracks at once"""
     phase2: str | None = None
     """adaptive-basis: "lsq" (least-squares optimum after every pass, default) or "paper" (5 Newton iterations)"""
 
@@ -106,8 +109,13 @@ def _mcmcda(d: Deployment, o: TrackerOptions) -> Tracker:
     config = replace(base, seed=o.seed, **speed,
                      **({"n_mc": o.n_mc} if o.n_mc is not None else {}),
                      **({"window": o.scans} if o.scans is not None else {}))
-    peer = make_tracker(o.estimates, d, replace(o, estimates=None)) if o.estimates is not None else None
-    return MCMCDATracker(d, fusion=fusion, config=config, peer=peer)
+    peer = make_tracker(o.estimates, d, replace(o, estimates=None, lag=None)) if o.estimates is not None else None
+    tracker = MCMCDATracker(d, fusion=fusion, config=config, peer=peer)
+    if o.lag is None:
+        return tracker
+    from bintrack.trackers.multi.fixed_lag import FixedLagSmoother
+
+    return FixedLagSmoother(tracker, o.lag)
 
 
 _PEER: dict[str, Callable[[Deployment, TrackerOptions], Tracker]] = {
@@ -143,6 +151,8 @@ def check_options(name: str, options: TrackerOptions) -> None:
         raise TrackerConfigError(f"unknown tracker {name!r} (available: {', '.join(TRACKER_NAMES)})")
     if name == "line-fit" and options.window is not None and options.window < 2:
         raise TrackerConfigError(f"line-fit fits a line to at least 2 estimates: --window {options.window} is too small")
+    if options.lag is not None and name != "mcmcda":
+        raise TrackerConfigError(f"--lag smooths the mcmcda tracker's tracks only, not {name}'s")
     if options.phase2 is not None and name != "adaptive-basis":
         raise TrackerConfigError(f"--phase2 applies to the adaptive-basis tracker only, not {name}")
     if options.estimates is not None:

@@ -20,6 +20,9 @@ def add_tracker_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scans", type=int_at_least(2), help=f"mcmcda: sliding window, scans (default: {MCMCDAConfig.window})")
     parser.add_argument("--estimates", choices=PEER_TRACKERS, metavar="TRACKER",
                         help="mcmcda: also take this peer tracker's estimates as position reports")
+    parser.add_argument("--lag", type=int_at_least(1), metavar="SCANS",
+                        help="mcmcda: give each scan's tracks this many scans late, with the gaps the later scans "
+                        "close filled and positions smoothed (a fixed-lag smoother; default: online)")
     parser.add_argument("--phase2", choices=PHASE2_METHODS,
                         help="adaptive-basis: lsq = eq. 5 to its least-squares optimum after every pass (default), "
                         "paper = 5 Newton iterations per pass (paper 003 §7.2)")
@@ -30,7 +33,7 @@ def tracker_arguments(options: TrackerOptions) -> tuple[str, ...]:
     decides the services themselves)."""
     out: list[str] = []
     for flag, value in (("--speed", options.speed), ("--window", options.window), ("--n-mc", options.n_mc),
-                        ("--scans", options.scans), ("--phase2", options.phase2)):
+                        ("--scans", options.scans), ("--lag", options.lag), ("--phase2", options.phase2)):
         if value is not None:
             out += [flag, str(value)]
     if options.seed:
@@ -40,6 +43,6 @@ def tracker_arguments(options: TrackerOptions) -> tuple[str, ...]:
 
 def tracker_options(args: argparse.Namespace) -> TrackerOptions:
     """The ``TrackerOptions`` of parsed command-line options (absent ones keep their defaults)."""
-    fields = {name: getattr(args, name) for name in ("speed", "window", "seed", "n_mc", "scans", "estimates", "phase2")
+    fields = {name: getattr(args, name) for name in ("speed", "window", "seed", "n_mc", "scans", "estimates", "lag", "phase2")
               if hasattr(args, name)}
     return TrackerOptions(**{k: v for k, v in fields.items() if v is not None})
