@@ -9,7 +9,8 @@
 * for a base-station tracker it runs the tracker itself on the network's transitions (in event
   time, gaps repaired like a peer agent) and publishes what it gives: ``fusion/reports`` and
   ``tracks`` (mcmcda), ``laser/objects`` (adaptive-basis), ``motion/velocity`` (velocity-plane,
-  svm, ppr, motion-rw).
+  svm, ppr, motion-rw). With ``--lag N`` (mcmcda) each scan's ``tracks`` come N scans late,
+  smoothed (:mod:`bintrack.trackers.multi.fixed_lag`); the reports still at once.
 
 With ``--region NAME`` (a region of the deployment's ``regions``) it takes only the transitions
 of that region's sensors and of those within a border band three sensing ranges wide
@@ -84,6 +85,8 @@ class Basestation(TransitionConsumer):
             tracker = make_tracker(self.args.tracker, deployment, replace(options, estimates=None))
         except ValueError as exc:
             raise CommandError(str(exc)) from None
+        if options.lag is not None:
+            log.info("%s: each scan's tracks given %d scans late, smoothed (--lag)", self.name, options.lag)
         peers = ("peer_agent",) if self.args.estimates is not None else ()
         # a region's base station hears only the transitions it takes, ordered by the agents' counts of
         # them, which are made for the default band (DESIGN §11); else the network's, in arrival order
