@@ -72,6 +72,11 @@ VARIANTS = {
     "soft footprints of 0.4 R for the reports, not R/2": ({"soft_spread": 0.4}, {}),
     "soft footprints of 0.6 R": ({"soft_spread": 0.6}, {}),
     **{f"fixed lag {n} scans ({n / 2:g} s)": ({}, {}, n) for n in (2, 4, 6, 8, 10)},
+    "lag 6, births anywhere (not 10 x fewer inside)": ({}, {"birth_inside": 1.0}, 6),
+    "lag 6, births inside 0.3 x": ({}, {"birth_inside": 0.3}, 6),
+    "lag 6, coast 2": ({}, {"coast": 2}, 6),
+    "lag 6, shared copies within 2 ranges": ({"shared_gap": 2.0}, {}, 6),
+    "lag 6, blob split at 5 nats": ({"expected_split_gain": 5.0}, {}, 6),
 }
 """name → (FusionConfig changes, MCMCDAConfig changes[, fixed lag in scans: ``bintrack track --lag``])"""
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
