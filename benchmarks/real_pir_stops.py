@@ -27,6 +27,9 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+from bintrack.evaluation.eval_report import evaluate
+from bintrack.formats import open_dataset
+
 PERIOD = 0.5
 SEEDS = (1, 2, 3)
 OPTIONS = {"online": (), "--lag 6": ("--lag", "6")}
@@ -96,9 +99,6 @@ def main() -> int:
     from bench_support import say
     from real_pir_choices import bintrack, calibrate_blind
     from real_sensors import import_sequence
-
-    from bintrack.evaluation.eval_report import evaluate
-    from bintrack.formats import open_dataset
 
     started = time.perf_counter()
     results = defaultdict(list)

@@ -12,8 +12,9 @@ For each sequence, with the command line a user would type:
    with ``--supervised`` for comparison: the median over sensors of |calibrated − supervised| /
    supervised per parameter;
 3. ``bintrack track --tracker mcmcda`` on the calibrated dataset (seeds 0..N−1: the MAP moves
-   with the sampler's seed), online and with the fixed-lag smoother (``--lag 6``, 3 s), and ``bintrack eval --gospa-c 2 --area 0,0,8,14`` (CLEAR MOT with a
-   1.5 m hit threshold and greedy matching, as the authors score it).
+   with the sampler's seed), online and with the fixed-lag smoother (``--lag 6``, 3 s), and
+   ``bintrack eval --gospa-c 2 --area 0,0,8,14`` (CLEAR MOT with a 1.5 m hit threshold and
+   greedy matching, as the authors score it).
 
 Beside them, in the same run: the stated footprint alone (0.7 m, no pd/pfa, no calibration) and
 the sensor model guessed from the truth before this work (range 1.5 m, pd 0.5, pfa 0.03), both
