@@ -64,8 +64,11 @@ class Basestation(TransitionConsumer):
         if deployment is None:
             return
         network, region = deployment, self.args.region
-        if region is not None and self.args.lag is not None:
-            raise CommandError("--lag smooths one base station's tracks; the merge of regions takes them online")
+        options = tracker_options(self.args)
+        try:
+            check_options(self.args.tracker, options, regional=region is not None)
+        except ValueError as exc:
+            raise CommandError(str(exc)) from None
         if region is not None:
             from bintrack.regions import RegionMap  # shapely: loaded only for a region
 
@@ -78,9 +81,7 @@ class Basestation(TransitionConsumer):
             log.info("%s: region %s, %d of the %d sensors (border band included)", self.name, region,
                      len(deployment.sensors), len(network.sensors))
         self.serve(self.tracks.key, self.tracks.answer)
-        options = tracker_options(self.args)
         try:
-            check_options(self.args.tracker, options)
             # live, the peer agents run the estimates' tracker
             tracker = make_tracker(self.args.tracker, deployment, replace(options, estimates=None))
         except ValueError as exc:

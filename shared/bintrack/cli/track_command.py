@@ -16,7 +16,7 @@ from bintrack.time_span import TimeSpan
 from bintrack.trackers.multi.region_merge import RegionMerge
 from bintrack.cli.progress import Progress
 from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
-from bintrack.trackers import OBJECT_TRACKERS, TRACKER_NAMES, make_tracker, sensor_mismatch
+from bintrack.trackers import OBJECT_TRACKERS, TRACKER_NAMES, check_options, make_tracker, sensor_mismatch
 from bintrack.trackers.tracker_arguments import add_tracker_arguments, tracker_options
 
 
@@ -96,10 +96,10 @@ def region_trackers(deployment, options, band: float | None = None) -> tuple[dic
 def run_regions_command(args: argparse.Namespace, dataset) -> int:
     if args.tracker != "mcmcda":
         raise CommandError(f"--regions runs mcmcda per region; --tracker {args.tracker} cannot")
-    if getattr(args, "lag", None) is not None:
-        raise CommandError("--lag smooths one base station's tracks; the merge of --regions takes them online")
+    options = tracker_options(args)
     try:
-        trackers, taken, regions = region_trackers(dataset.deployment, tracker_options(args))
+        check_options("mcmcda", options, regional=True)
+        trackers, taken, regions = region_trackers(dataset.deployment, options)
     except ValueError as exc:
         raise CommandError(str(exc)) from None
     out = args.out or "tracks.csv"

@@ -343,8 +343,6 @@ def _region_source(args: argparse.Namespace) -> tuple[tempfile.TemporaryDirector
 
     if args.tracker != "mcmcda":
         raise CommandError(f"--regions runs mcmcda at the region base stations; --tracker {args.tracker} cannot")
-    if getattr(args, "lag", None) is not None:
-        raise CommandError("--lag smooths one base station's tracks; the merge of --regions takes them online")
     if args.regions < 1:
         raise CommandError(f"--regions must be at least 1, got {args.regions}")
     if args.source is None or Path(args.source).suffix == ".mcap":
@@ -489,7 +487,7 @@ def _run(args: argparse.Namespace, regions=None, network=None) -> int:
             print(f"up: warning: {mismatch}", file=sys.stderr)
     options = replace(tracker_options(args), speed=None)  # --speed here is the replay's
     try:
-        make_tracker_check(args.tracker, options)
+        make_tracker_check(args.tracker, options, regional=getattr(args, "regions", None) is not None)
     except ValueError as exc:
         raise CommandError(str(exc)) from None
     view_bind = getattr(args, "view_bind", "127.0.0.1")

@@ -145,14 +145,17 @@ def runs_on_peers(name: str) -> bool:
     return name in _PEER
 
 
-def check_options(name: str, options: TrackerOptions) -> None:
-    """TrackerConfigError (one line) if tracker ``name`` does not exist or cannot take ``options``."""
+def check_options(name: str, options: TrackerOptions, regional: bool = False) -> None:
+    """TrackerConfigError (one line) if tracker ``name`` does not exist or cannot take ``options``
+    (``regional``: at a region's base station, whose tracks the merge takes online)."""
     if name not in _PEER and name not in _BASE:
         raise TrackerConfigError(f"unknown tracker {name!r} (available: {', '.join(TRACKER_NAMES)})")
     if name == "line-fit" and options.window is not None and options.window < 2:
         raise TrackerConfigError(f"line-fit fits a line to at least 2 estimates: --window {options.window} is too small")
     if options.lag is not None and name != "mcmcda":
         raise TrackerConfigError(f"--lag smooths the mcmcda tracker's tracks only, not {name}'s")
+    if options.lag is not None and regional:
+        raise TrackerConfigError("--lag smooths one base station's tracks; the merge of regions takes them online")
     if options.phase2 is not None and name != "adaptive-basis":
         raise TrackerConfigError(f"--phase2 applies to the adaptive-basis tracker only, not {name}")
     if options.estimates is not None:

@@ -67,23 +67,31 @@ class FixedLagSmoother:
             tracks = {track.track: track for track in message.tracks}
             self._top = max(self._top, *tracks) if tracks else self._top
             self._scans.append((message.t, message.tracker, tracks, self._top))
-            if self._first + len(self._scans) - 1 - self._next >= self.lag:
+            if self._last - self._next >= self.lag:
                 out.append(self._give())
-        while final and self._next < self._first + len(self._scans):
+        while final and self._next <= self._last:
             out.append(self._give())
         return out
+
+    @property
+    def _last(self) -> int:
+        """Scan number of the latest scan held."""
+        return self._first + len(self._scans) - 1
+
+    def _at(self, n: int) -> tuple[float, str, dict[int, Track], int]:
+        return self._scans[n - self._first]
 
     def _give(self) -> TrackSet:
         """The smoothed ``TrackSet`` of scan ``_next``; then forget what no later one needs."""
         j = self._next
-        t, name, _, _ = self._scans[j - self._first]
-        candidates = {k for n in range(max(self._first, j - self.lag), self._first + len(self._scans))
-                      for k in self._scans[n - self._first][2]}
+        t, name, _, _ = self._at(j)
+        candidates = {k for n in range(max(self._first, j - self.lag), self._last + 1) for k in self._at(n)[2]}
         tracks = []
         for k in sorted(candidates):
-            if self._filled(k, j) is None:
+            filled = {n: p for n in range(j - self.half_width, j + self.half_width + 1) if (p := self._filled(k, n)) is not None}
+            if j not in filled:
                 continue
-            near = [p for n in range(j - self.half_width, j + self.half_width + 1) if (p := self._filled(k, n)) is not None]
+            near = list(filled.values())
             x = sum(p[0] for p in near) / len(near)
             y = sum(p[1] for p in near) / len(near)
             moving = [p for p in near if p[2] is not None]
@@ -99,23 +107,21 @@ class FixedLagSmoother:
     def _filled(self, k: int, n: int) -> tuple[float, float, float | None, float | None] | None:
         """(x, y, vx, vy) of identity ``k`` at scan ``n`` from the scans held: as shown, else
         filled in a gap or shown a scan early (the module), else None."""
-        last = self._first + len(self._scans) - 1
-        if not self._first <= n <= last:
+        if not self._first <= n <= self._last:
             return None
-        t, _, tracks, top = self._scans[n - self._first]
+        t, _, tracks, top = self._at(n)
         if k in tracks:
             track = tracks[k]
             return track.x, track.y, track.vx, track.vy
-        after = next((b for b in range(n + 1, min(n + self.lag, last) + 1) if k in self._scans[b - self._first][2]), None)
+        after = next((b for b in range(n + 1, min(n + self.lag, self._last) + 1) if k in self._at(b)[2]), None)
         if after is None:
             return None
-        tb, _, later, _ = self._scans[after - self._first]
+        tb, _, later, _ = self._at(after)
         b = later[k]
-        before = next((a for a in range(n - 1, max(self._first, after - self.lag - 1) - 1, -1)
-                       if k in self._scans[a - self._first][2]), None)
+        before = next((a for a in range(n - 1, max(self._first, after - self.lag - 1) - 1, -1) if k in self._at(a)[2]), None)
         if before is None:
             return (b.x, b.y, b.vx, b.vy) if after == n + 1 and k > top else None
-        ta, _, earlier, _ = self._scans[before - self._first]
+        ta, _, earlier, _ = self._at(before)
         a = earlier[k]
         w = (t - ta) / (tb - ta)
         vx, vy = (b.x - a.x) / (tb - ta), (b.y - a.y) / (tb - ta)
