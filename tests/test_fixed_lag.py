@@ -1,10 +1,12 @@
 """The fixed-lag smoother of mcmcda's tracks (``bintrack track --lag``): late by exactly the lag,
-gaps filled, a new identity shown a scan early, positions averaged, nothing invented."""
+made from the tracker's later association of each scan's reports, gaps filled, positions
+averaged, nothing invented."""
 
 from __future__ import annotations
 
 import math
 import pickle
+from collections import deque
 
 import pytest
 
@@ -20,20 +22,33 @@ DARPA3 = DATASETS / "darpa-grid-3"
 
 
 class Scripted:
-    """A tracker that gives, per transition, the next of a list of scans (identity → x; y = 0)."""
+    """A tracker that gives, per transition, the next scan's ``TrackSet`` (empty: what it
+    publishes does not matter to the smoother) and, as its revision, its association of the last
+    ``window`` scans: ``scans[n]`` (identity → x; y = 0) as known after scan n, each replaced by
+    ``revised[(m, n)]`` where given (scan n's association as known after scan m)."""
 
     name = "scripted"
 
-    def __init__(self, scans: list[dict[int, float]]):
+    def __init__(self, scans: list[dict[int, float]], window: int = 3,
+                 revised: dict[tuple[int, int], dict[int, float]] | None = None):
         self.scans = list(scans)
+        self.window = window
+        self.revised = revised or {}
+        self.step = 0
         self.late_estimates = 7
+        self.revisions = None
+
+    def keep_revisions(self):
+        self.revisions = []
 
     def update(self, message):
-        t = message.t
-        shown = self.scans.pop(0)
-        tracks = [Track(track=k, x=x, y=0.0, vx=1.0, vy=0.0) for k, x in sorted(shown.items())]
+        m, t = self.step, message.t
+        self.step += 1
+        known = [(0.5 * n, {k: (x, 0.0) for k, x in self.revised.get((m, n), self.scans[n]).items()})
+                 for n in range(max(0, m - self.window + 1), m + 1)]
+        self.revisions.append(known)
         return [PositionReports(t=t, reports=[PositionReport(x=0.0, y=0.0, cov=((1.0, 0.0), (0.0, 1.0)))]),
-                TrackSet(t=t, tracker=self.name, tracks=tracks)]
+                TrackSet(t=t, tracker=self.name, tracks=[])]
 
     def flush(self, t):
         return []
@@ -43,14 +58,18 @@ def scan(n: int) -> Transition:
     return Transition(t=0.5 * n, sensor="s", value=1, previous=0, seq=n + 1)
 
 
-def run(scans: list[dict[int, float]], lag: int, stop: int | None = None):
-    smoother = FixedLagSmoother(Scripted(scans), lag)
+def run(scans: list[dict[int, float]], lag: int, stop: int | None = None, **script):
+    smoother = FixedLagSmoother(Scripted(scans, **script), lag)
     out = [smoother.update(scan(n)) for n in range(len(scans) if stop is None else stop)]
     return smoother, out
 
 
 def shown(track_set: TrackSet) -> dict[int, float]:
     return {track.track: round(track.x, 9) for track in track_set.tracks}
+
+
+def given(smoother: FixedLagSmoother, out) -> list[TrackSet]:
+    return [m for step in out for m in step if isinstance(m, TrackSet)] + smoother.flush(math.inf)
 
 
 def test_each_scan_comes_lag_scans_late_and_all_at_the_end():
@@ -60,59 +79,79 @@ def test_each_scan_comes_lag_scans_late_and_all_at_the_end():
     assert [[type(m).__name__ for m in step] for step in out] == [
         ["PositionReports"], ["PositionReports"], ["PositionReports", "TrackSet"],
         ["PositionReports", "TrackSet"], ["PositionReports", "TrackSet"], ["PositionReports", "TrackSet"]]
-    given = [m for step in out for m in step if isinstance(m, TrackSet)]
-    assert [m.t for m in given] == [0.0, 0.5, 1.0, 1.5]
+    early = [m for step in out for m in step if isinstance(m, TrackSet)]
+    assert [m.t for m in early] == [0.0, 0.5, 1.0, 1.5]
     assert smoother.flush(10.0) == []  # more scans may come
     rest = smoother.flush(math.inf)
     assert [m.t for m in rest] == [2.0, 2.5]
-    assert all(m.tracker == "scripted" for m in given + rest)
+    assert all(m.tracker == "scripted" for m in early + rest)
     # a straight walk is its own moving average, but at the ends, where the average is one-sided
-    assert [shown(m)[1] for m in given[1:]] == [1.0, 2.0, 3.0]
+    assert [shown(m)[1] for m in early[1:]] == [1.0, 2.0, 3.0]
+    # the velocity is the slope of the positions averaged: 1 unit per 0.5 s
+    assert [track.vx for m in early[1:] for track in m.tracks] == pytest.approx([2.0, 2.0, 2.0])
+    assert [track.vy for m in early[1:] for track in m.tracks] == pytest.approx([0.0, 0.0, 0.0])
 
 
 def test_a_gap_the_lag_closes_is_filled_and_a_longer_one_is_not():
-    # identity 1 hidden for 2 scans, identity 2 for 4: with a lag of 3, only the first is filled
+    # identity 1 unreported for 2 scans, identity 2 for 4: with a lag of 3, only the first is filled
     scans = [{1: 0.0, 2: 10.0}, {}, {}, {1: 3.0}, {}, {}, {}, {}, {2: 18.0}, {}, {}]
     smoother, out = run(scans, lag=3)
-    given = [m for step in out for m in step if isinstance(m, TrackSet)] + smoother.flush(math.inf)
-    ones = [n for n, m in enumerate(given) if 1 in shown(m)]
-    twos = [n for n, m in enumerate(given) if 2 in shown(m)]
-    assert ones == [0, 1, 2, 3]
-    assert twos == [0, 8]
-    # linear in time between the two showings, then averaged over a scan on each side, where
+    result = given(smoother, out)
+    assert [n for n, m in enumerate(result) if 1 in shown(m)] == [0, 1, 2, 3]
+    assert [n for n, m in enumerate(result) if 2 in shown(m)] == [0, 8]
+    # linear in time between the two reports, then averaged over a scan on each side, where
     # known within the lag (at scan 0 scan 1 is not yet filled: its gap closes at scan 2)
     smoother, out = run([{1: 0.0}, {}, {1: 4.0}, {}], lag=1)
-    given = [m for step in out for m in step if isinstance(m, TrackSet)] + smoother.flush(math.inf)
-    assert [shown(m) for m in given] == [{1: 0.0}, {1: 2.0}, {1: 3.0}, {}]
+    assert [shown(m) for m in given(smoother, out)] == [{1: 0.0}, {1: 2.0}, {1: 3.0}, {}]
 
 
-def test_a_new_identity_is_shown_one_scan_early_and_a_returning_one_is_not():
-    scans = [{}, {}, {}, {5: 3.0}, {5: 3.0}, {5: 3.0}, {}, {}, {}, {}, {}, {}, {5: 9.0}, {}]
-    smoother, out = run(scans, lag=2)
-    given = [m for step in out for m in step if isinstance(m, TrackSet)] + smoother.flush(math.inf)
-    assert [n for n, m in enumerate(given) if 5 in shown(m)] == [2, 3, 4, 5, 12]
-    assert shown(given[2]) == {5: 3.0}
-    # an identity smaller than one already shown is an old one coming back, not shown early
-    scans = [{4: 0.0}, {}, {}, {}, {}, {}, {9: 1.0}, {}, {}, {}, {}, {4: 5.0}, {}]
-    smoother, out = run(scans, lag=2)
-    given = [m for step in out for m in step if isinstance(m, TrackSet)] + smoother.flush(math.inf)
-    assert [n for n, m in enumerate(given) if 4 in shown(m)] == [0, 11]
-    assert [n for n, m in enumerate(given) if 9 in shown(m)] == [5, 6]
+def test_the_trackers_later_association_of_a_scan_is_what_is_shown():
+    # online, identity 5's first two reports were false alarms and identity 3 a track of one
+    # report; two scans later the sampler gave those reports to 5 and dropped 3
+    scans = [{}, {}, {3: 1.0}, {5: 3.0}, {5: 3.0}, {5: 3.0}, {}, {}, {}]
+    revised = {(m, n): {5: 3.0} for m in (3, 4) for n in (1, 2) if m - n < 3}
+    smoother, out = run(scans, lag=2, revised=revised)
+    result = given(smoother, out)
+    assert [n for n, m in enumerate(result) if 5 in shown(m)] == [1, 2, 3, 4, 5]
+    assert not any(3 in shown(m) for m in result)
+    # a revision the lag does not wait for is not shown: scan 1's, made at scan 4, is 3 scans late
+    smoother, out = run(scans, lag=2, revised={(4, 2): {5: 3.0}, (4, 1): {5: 3.0}}, window=4)
+    result = given(smoother, out)
+    assert [n for n, m in enumerate(result) if 5 in shown(m)] == [2, 3, 4, 5]
+    assert [n for n, m in enumerate(result) if 3 in shown(m)] == []
 
 
 def test_it_shows_no_identity_the_tracker_did_not_and_pickles_mid_stream():
     scans = [{1: float(n), 2: 5.0 - n} if n % 3 else {1: float(n)} for n in range(12)]
     whole, out = run(scans, lag=4)
-    expected = [m for step in out for m in step if isinstance(m, TrackSet)] + whole.flush(math.inf)
+    expected = given(whole, out)
     assert {k for m in expected for k in shown(m)} == {1, 2}
     assert whole.late_estimates == 7  # the tracker's own attributes show through
     half, out = run(scans, lag=4, stop=5)
     again = pickle.loads(pickle.dumps(half))  # a base station's checkpoint
-    given = [m for step in out for m in step if isinstance(m, TrackSet)]
+    result = [m for step in out for m in step if isinstance(m, TrackSet)]
     for n in range(5, 12):
-        given += [m for m in again.update(scan(n)) if isinstance(m, TrackSet)]
-    given += again.flush(math.inf)
-    assert given == expected
+        result += [m for m in again.update(scan(n)) if isinstance(m, TrackSet)]
+    result += again.flush(math.inf)
+    assert result == expected
+
+
+def test_a_checkpoint_of_the_smoother_before_revisions_goes_on():
+    """A smoother pickled by the release before (it held the published tracks and the largest
+    identity shown; its tracker kept no revisions) goes on from the positions it held."""
+    tracker = Scripted([{1: float(n)} for n in range(8)])
+    tracker.step = 3
+    old = FixedLagSmoother.__new__(FixedLagSmoother)
+    old.__setstate__({"inner": tracker, "lag": 2, "half_width": 1, "_first": 0, "_next": 1, "_top": 1,
+                      "_scans": deque((0.5 * n, "scripted", {1: Track(track=1, x=float(n), y=0.0)}, 1)
+                                      for n in range(3))})
+    assert tracker.revisions == []
+    result = []
+    for n in range(3, 8):
+        result += [m for m in old.update(scan(n)) if isinstance(m, TrackSet)]
+    result += old.flush(math.inf)
+    assert [m.t for m in result] == [0.5 * n for n in range(1, 8)]
+    assert [shown(m)[1] for m in result] == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 6.5]
 
 
 def test_a_lag_below_one_scan_is_refused_by_the_smoother():
@@ -154,3 +193,26 @@ def test_track_with_a_lag_keeps_the_online_identities_and_fills_their_gaps(tmp_p
     assert {r.track for r in b} == {r.track for r in a}
     assert len(b) >= len(a)
     assert {r.t for r in b} <= {r.t for r in a} | {r.t - 0.5 for r in a} | {r.t + 0.5 * k for r in a for k in range(5)}
+
+
+def test_the_trackers_revisions_cover_its_window_and_its_reported_tracks():
+    """What the smoother reads: after each scan, mcmcda's association of the reports of its
+    window, one revision per ``TrackSet``; an identity holding a report of the newest scan is
+    one the tracker publishes at that scan."""
+    from bintrack.formats import open_dataset
+    from bintrack.pipeline import run_tracker
+    from bintrack.trackers import TrackerOptions, make_tracker
+
+    dataset = open_dataset(DARPA3)
+    tracker = make_tracker("mcmcda", dataset.deployment, TrackerOptions())
+    tracker.keep_revisions()
+    sets = [m for m in run_tracker(dataset, tracker) if isinstance(m, TrackSet)]
+    assert len(tracker.revisions) == len(sets) > 100
+    held = 0
+    for track_set, revision in zip(sets, tracker.revisions):
+        times = [t for t, _ in revision]
+        assert times == sorted(times) and times[-1] == track_set.t and len(times) <= tracker.mcmcda.config.window
+        newest = revision[-1][1]
+        assert set(newest) <= {track.track for track in track_set.tracks}
+        held += len(newest)
+    assert held > 100

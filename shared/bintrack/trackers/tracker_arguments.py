@@ -21,8 +21,9 @@ def add_tracker_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--estimates", choices=PEER_TRACKERS, metavar="TRACKER",
                         help="mcmcda: also take this peer tracker's estimates as position reports")
     parser.add_argument("--lag", type=int_at_least(1), metavar="SCANS",
-                        help="mcmcda: give each scan's tracks this many scans late, with the gaps the later scans "
-                        "close filled and positions smoothed (a fixed-lag smoother; default: online)")
+                        help="mcmcda: give each scan's tracks this many scans late, from the sampler's later "
+                        "association of its reports, gaps filled and positions smoothed (a fixed-lag smoother; "
+                        "default: online)")
     parser.add_argument("--phase2", choices=PHASE2_METHODS,
                         help="adaptive-basis: lsq = eq. 5 to its least-squares optimum after every pass (default), "
                         "paper = 5 Newton iterations per pass (paper 003 §7.2)")

@@ -40,6 +40,9 @@ class MCMCDATracker:
     """
 
     name = "mcmcda"
+    revisions: list | None = None
+    """kept (:meth:`keep_revisions`): after each scan, :meth:`OnlineMCMCDA.associations` of the
+    window; the fixed-lag smoother takes them, one per ``TrackSet``"""
 
     def __init__(self, deployment: Deployment, fusion: FusionConfig = FusionConfig(),
                  config: MCMCDAConfig = MCMCDAConfig(), peer: Tracker | None = None):
@@ -68,6 +71,11 @@ class MCMCDATracker:
             real_pir = any(getattr(s, "hold", None) is not None for s in self.fusion.sensors.values())
             exit_depth = None if real_pir else MCMCDAConfig().in_units(metres_per_unit).exit_depth
             chain.config = replace(chain.config, exit_depth=exit_depth)
+
+    def keep_revisions(self) -> None:
+        """From now on, after each scan append the MAP's association of the window's reports to
+        ``revisions`` (:mod:`bintrack.trackers.multi.fixed_lag` reads and empties it)."""
+        self.revisions = []
 
     def update(self, message: Transition | LocalEstimate) -> list[PositionReports | TrackSet]:
         """A transition: the scans it completes, fused and tracked. A peer's estimate: a report
@@ -116,4 +124,6 @@ class MCMCDATracker:
                 scan = PositionReports(t=scan.t, reports=[*scan.reports, *(r for _, _, r in extra)])
             out.append(scan)
             out.append(self.mcmcda.step(scan))
+            if self.revisions is not None:
+                self.revisions.append(self.mcmcda.associations())
         return out
