@@ -117,10 +117,10 @@ class FixedLagSmoother:
         candidates = {k for n in range(max(self._first, j - self.lag), self._last + 1) for k in self._at(n)[2]}
         tracks = []
         for k in sorted(candidates):
-            if self._filled(k, j) is None:
+            filled = {n: p for n in range(j - self.half_width, j + self.half_width + 1) if (p := self._filled(k, n)) is not None}
+            if j not in filled:
                 continue
-            near = [(self._at(n)[0], p) for n in range(j - self.half_width, j + self.half_width + 1)
-                    if (p := self._filled(k, n)) is not None]
+            near = [(self._at(n)[0], p) for n, p in filled.items()]
             x = sum(p[0] for _, p in near) / len(near)
             y = sum(p[1] for _, p in near) / len(near)
             tracks.append(Track(track=k, x=x, y=y, vx=_slope(near, 0), vy=_slope(near, 1)))
