@@ -77,6 +77,10 @@ VARIANTS = {
     "lag 6, coast 2": ({}, {"coast": 2}, 6),
     "lag 6, shared copies within 2 ranges": ({"shared_gap": 2.0}, {}, 6),
     "lag 6, blob split at 5 nats": ({"expected_split_gain": 5.0}, {}, 6),
+    "no track kept for a person standing still (still_misses 0, not 40)": ({}, {"still_misses": 0}),
+    "standing still: prior 0.05, not 0.01": ({}, {"still_prior": 0.05}),
+    "standing still up to 12 scans (6 s), not 40": ({}, {"still_misses": 12}),
+    "lag 6, no track kept for a person standing still": ({}, {"still_misses": 0}, 6),
 }
 """name → (FusionConfig changes, MCMCDAConfig changes[, fixed lag in scans: ``bintrack track --lag``])"""
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")

@@ -236,6 +236,35 @@ def test_a_track_unreported_at_the_field_edge_is_not_coasted(last_x, field_depth
     assert [tr.track for tr in tracks] == ([1] if coasted else [])
 
 
+def identities_of_one_who_stands(seed: int, config: MCMCDAConfig, y: float, still: int, aside: float = 0.0) -> set[int]:
+    """The identities published for one person who walks along ``y`` at 1.2 m/s from x = 13 m
+    for 20 scans of 0.5 s, stands at x = 25 m unreported for ``still`` scans, then walks on
+    ``aside`` m off their path for 16 scans (reports with 0.3 m of noise per axis)."""
+    rng = np.random.default_rng(seed)
+    tracker = OnlineMCMCDA(config, field_depth=square_field_depth)
+    seen = set()
+    for k in range(36 + still):
+        walked = min(k, 20) + max(0, k - 20 - still)
+        reports = [] if 20 <= k < 20 + still else [PositionReport(
+            x=13 + 0.6 * walked + rng.normal(0, 0.3), y=y + (aside if k >= 20 + still else 0.0) + rng.normal(0, 0.3),
+            cov=((0.5, 0.0), (0.0, 0.5)))]
+        seen |= {tr.track for tr in tracker.step(PositionReports(t=0.5 * k, reports=reports)).tracks}
+    return seen
+
+
+@pytest.mark.parametrize("still_misses, y, still, aside, identities", [
+    (40, 25.0, 30, 0.0, 1), (0, 25.0, 30, 0.0, 2), (40, 0.5, 30, 0.0, 2), (40, 25.0, 30, 6.0, 2), (40, 25.0, 45, 0.0, 2)])
+def test_a_person_who_stands_still_unreported_keeps_their_identity_where_they_stood(still_misses, y, still, aside, identities):
+    # a PIR sees motion: a person standing still for 15 s gives no report. With still_misses a
+    # track that ends inside the field may go on from where it was last reported, so the person
+    # walking on keeps their identity; not without it (the prediction walks on, and 15 s is past
+    # reidentify), nor 0.5 m from the field's edge (under still_depth = 1 m: most likely left),
+    # nor 6 m aside (beyond still_reach), nor after 45 scans (over still_misses + 1)
+    config = MCMCDAConfig(seed=0, still_misses=still_misses)
+    for seed in range(4):
+        assert len(identities_of_one_who_stands(seed, config, y, still, aside)) == identities, f"seed {seed}"
+
+
 @pytest.mark.parametrize("first_x, weight, at_once", [(-1.0, 12.0, True), (-1.0, 5.0, False), (25.0, 12.0, False)])
 def test_a_person_entering_at_the_field_edge_is_published_at_their_first_report(first_x, weight, at_once):
     # one person walks along y = 30 at 1.5 m/s from first_x: with entry_depth = 2 m, a first
@@ -357,6 +386,7 @@ def test_mcmcda_parameters_in_metres_convert_to_feet():
     assert ft.false_alarm_rate == pytest.approx(m.false_alarm_rate * FOOT ** 2)
     assert ft.birth_rate == pytest.approx(m.birth_rate * FOOT ** 2)
     assert ft.exit_depth == pytest.approx(m.exit_depth / FOOT)
+    assert (ft.still_depth, ft.still_reach) == pytest.approx((m.still_depth / FOOT, m.still_reach / FOOT))
     assert (ft.window, ft.n_mc, ft.pd, ft.reidentify) == (m.window, m.n_mc, m.pd, m.reidentify)
     assert m.in_units(1.0) == m
     # the tracker converts its metre defaults, but --speed is already in the deployment's units
@@ -365,7 +395,8 @@ def test_mcmcda_parameters_in_metres_convert_to_feet():
     assert make_tracker("mcmcda", deployment, TrackerOptions(speed=5.0)).mcmcda.config.max_speed == pytest.approx(5.0)
 
 
-@pytest.mark.parametrize("field, value", [("pd", 1.0), ("window", 1), ("false_alarm_rate", 0.0), ("n_mc", 0), ("reidentify", -1.0)])
+@pytest.mark.parametrize("field, value", [("pd", 1.0), ("window", 1), ("false_alarm_rate", 0.0), ("n_mc", 0),
+                                          ("reidentify", -1.0), ("still_misses", -1), ("still_pd", 0.0), ("still_prior", 1.0), ("still_reach", 0.0)])
 def test_a_parameter_out_of_range_is_refused(field, value):
     with pytest.raises(ValueError, match=field):
         MCMCDAConfig(**{field: value})

@@ -25,6 +25,13 @@ window, and whose identity it keeps (:mod:`.mcmcda_window`).
 Identities are ours (Oh et al. leave output labels open): :mod:`.track_identity`. The Kalman
 filter runs per axis: :mod:`.kalman_model`. The parameters: :mod:`.mcmcda_config`.
 
+Real PIR sensors see motion, and a person standing still fades out. With ``still_misses`` (ours,
+off by default) a track whose last report lies inside the sensor field may go on after a gap of
+more than d̄ + 1 scans, as a target that stood still where it was last reported: the gap costs
+log ``still_prior`` + (gap − 1) log(1 − ``still_pd``) in place of (gap − 1) log(1 − p_d), and the
+next report is scored against the last position, spread by half ``still_reach``, with a velocity
+drawn afresh (:meth:`ScanWindow._advance`).
+
 Shared reports (copies the fusion makes for a track whose target hides in another's blob,
 :mod:`bintrack.trackers.multi.target_fit`) are scored like any report, but no new track may begin with one.
 ``expected`` tells the fusion where the MAP's tracks expect their targets in the next scan.
@@ -170,8 +177,12 @@ class OnlineMCMCDA(ScanWindow, ChainMoves, TrackIdentity):
             sx, sy, last_scan, last_t, score = self._filtered(anchor, reports[:-1])
             rep = self._reports[reports[-1]]
             gap = rep.scan - last_scan
-            sx, sy, log_n = self._advance(sx, sy, last_t, rep)
-            score += log_n + gap * math.log1p(-c.termination) + (gap - 1) * math.log1p(-c.pd) + math.log(c.pd) - self._log_lf
+            sx, sy, log_n = self._advance(sx, sy, last_t, rep, last_scan)
+            if gap > c.max_misses + 1:  # it stood still (still_misses), then walked on
+                missed = math.log(c.still_prior) + (gap - 1) * math.log1p(-c.still_pd)
+            else:
+                missed = (gap - 1) * math.log1p(-c.pd)
+            score += log_n + gap * math.log1p(-c.termination) + missed + math.log(c.pd) - self._log_lf
             done = sx, sy, rep.scan, rep.t, score
         self._filters[key] = done
         return done
@@ -265,7 +276,7 @@ class OnlineMCMCDA(ScanWindow, ChainMoves, TrackIdentity):
         starts = self._starts(free)
         getrandbits = self._rng.getrandbits
         n, k = len(starts), len(starts).bit_length()
-        spans = [self._span(self._gates[first]) for first in starts]
+        spans = [self._gaps(self._gates[first])[1] for first in starts]
         bits = [span.bit_length() for span in spans]
         for _ in range(count):
             i = getrandbits(k)

@@ -80,6 +80,22 @@ class MCMCDAConfig:
     """xmin, ymin, xmax, ymax (units) of the room for ``birth_edge``; None: no room"""
     birth_inside: float = 0.1
     """λ_b farther than ``birth_edge`` from the edge, as a fraction of λ_b near it"""
+    still_misses: int = 0
+    """scans a track may go unreported and then go on from where it was last reported, as a
+    target that stood still (a PIR sees motion: a person standing fades out); longer than d̄
+    only, for a track last reported at least ``still_depth`` inside the sensor field; 0: off"""
+    still_depth: float = 1.0
+    """units: how far inside the sensor field (the sensors' convex hull) a track must end to be
+    taken for a target that stood still (``still_misses``); nearer the edge it has most likely left"""
+    still_reach: float = 1.5
+    """units: how far from a still target's last report its next one may lie (plus
+    ``gate_sigmas`` σ of the two positions); its position's spread is half this"""
+    still_pd: float = 0.05
+    """probability that a still target yields a report in a scan"""
+    still_prior: float = 0.01
+    """probability that a target unreported for over d̄ + 1 scans stood still rather than ended
+    (0.01 chosen with real PIR on the selection sets of ``benchmarks/real_pir_choices.py``: 0.05
+    and 0.2 traded people more in a crowd)"""
     adapt_rates: int = 0
     """scans of settled evidence behind online estimates of ``pd`` and ``false_alarm_rate``
     (:mod:`.mcmcda_rates`; the configured values are their prior); 0: the configured values
@@ -96,6 +112,7 @@ class MCMCDAConfig:
                        exit_depth=None if self.exit_depth is None else self.exit_depth * k,
                        entry_depth=None if self.entry_depth is None else self.entry_depth * k,
                        birth_edge=None if self.birth_edge is None else self.birth_edge * k,
+                       still_depth=self.still_depth * k, still_reach=self.still_reach * k,
                        birth_area=None if self.birth_area is None else tuple(v * k for v in self.birth_area))
 
     def __post_init__(self):
@@ -105,7 +122,9 @@ class MCMCDAConfig:
                   ("max_speed", self.max_speed > 0), ("initial_speed", self.initial_speed > 0),
                   ("process_noise", self.process_noise > 0), ("extra_variance", self.extra_variance >= 0),
                   ("gate_sigmas", self.gate_sigmas > 0), ("coast", self.coast >= 0), ("reidentify", self.reidentify >= 0), ("min_reports", self.min_reports >= 2),
-                  ("adapt_rates", self.adapt_rates >= 0), ("entry_gain", self.entry_gain >= 0)]
+                  ("adapt_rates", self.adapt_rates >= 0), ("entry_gain", self.entry_gain >= 0),
+                  ("still_misses", self.still_misses >= 0), ("still_reach", self.still_reach > 0),
+                  ("still_pd", 0 < self.still_pd < 1), ("still_prior", 0 < self.still_prior < 1)]
         bad = [name for name, ok in checks if not ok]
         if bad:
             raise TrackerConfigError(f"MCMCDA parameter out of range: {', '.join(f'{n}={getattr(self, n)}' for n in bad)}")

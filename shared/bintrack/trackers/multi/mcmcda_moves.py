@@ -3,7 +3,8 @@ birth/death, split/merge, extension/reduction, track update and track switch, ea
 log ratio of its reverse and forward proposal probabilities for the Metropolis–Hastings
 acceptance (eq. 5).
 
-Extension proposals grow a track forward: choose a gap d ∈ 1..d̄+1 scans uniformly, then a false
+Extension proposals grow a track forward: choose a gap d ∈ 1..d̄+1 scans uniformly (from an
+anchor with ``still_misses``, one of the gaps to the window's scans up to ``still_misses`` + 1), then a false
 alarm within the gate at that scan uniformly, and stop with probability γ. Proposal
 probabilities enter the acceptance ratio; the probability that an extension stops because no
 candidate lies in the gate is neglected (it is small next to γ).
@@ -53,10 +54,13 @@ class ChainMoves:
         while True:
             if (added or not must) and rng.random() < c.stop:
                 return added, logq + math.log(c.stop)
-            span = min(c.max_misses + 1, self._scan - gate.scan)  # _span, inline in the chain's hottest loop
+            if c.still_misses:
+                first, span = self._gaps(gate)
+            else:
+                first, span = 1, min(c.max_misses + 1, self._scan - gate.scan)  # _gaps, inline in the chain's hottest loop
             if span < 1:
                 return added, logq
-            d = 1 + below(rng, span)  # randint(1, span)
+            d = first + below(rng, span)  # randint(first, first + span - 1)
             # candidates lie after every report added so far, so none of those is among them
             cands = [r for r in gate.at.get(gate.scan + d, ()) if r in free]
             if not cands:
@@ -72,14 +76,14 @@ class ChainMoves:
         gates = self._gates
         logq = 0.0
         for i, rid in enumerate(path):
-            span = self._span(gate)
+            span = self._gaps(gate)[1]
             if span < 1 or rid not in gate.all or rid not in free:
                 return -math.inf
             after = gates[rid]
             cands = len(free.intersection(gate.at[after.scan]))
             logq += -math.log(span) - math.log(cands) + (math.log1p(-c.stop) if (i or not must) else 0.0)
             gate = after
-        return logq + (math.log(c.stop) if self._span(gate) >= 1 else 0.0)
+        return logq + (math.log(c.stop) if self._gaps(gate)[1] >= 1 else 0.0)
 
     def _ratio_k(self, k_before: int, k_after: int, forward_q: float, reverse_q: float) -> float:
         # ξ is uniform over the eight moves whenever there is a track; birth only when none
@@ -108,11 +112,18 @@ class ChainMoves:
 
     def _continuable(self, gate: Gate, free) -> bool:
         """Whether ``_extend`` from ``gate`` finds a free report at some gap it may draw."""
-        return any(r in free for d in range(1, self._span(gate) + 1) for r in gate.at.get(gate.scan + d, ()))
+        first, span = self._gaps(gate)
+        return any(r in free for d in range(first, first + span) for r in gate.at.get(gate.scan + d, ()))
 
-    def _span(self, gate: Gate) -> int:
-        """How many scans after ``gate``'s an extension from it may reach in the window."""
-        return min(self.config.max_misses + 1, self._scan - gate.scan)
+    def _gaps(self, gate: Gate) -> tuple[int, int]:
+        """The gaps (scans after ``gate``'s) an extension from it draws from: (the first, how
+        many). 1 to d̄ + 1 up to the current scan; from an anchor, with ``still_misses``, the
+        gaps to the window's scans up to ``still_misses`` + 1."""
+        c = self.config
+        if c.still_misses and gate.scan < self._scans[0][0]:
+            first = self._scans[0][0] - gate.scan
+            return first, min(max(c.max_misses, c.still_misses) + 1, self._scan - gate.scan) - first + 1
+        return 1, min(c.max_misses + 1, self._scan - gate.scan)
 
     def _mortal(self, tracks):
         """Indices of the tracks without an anchor, which a death may remove."""

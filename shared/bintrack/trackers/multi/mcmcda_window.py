@@ -4,7 +4,8 @@ gates that say which reports may follow which in a track.
 
 Each scan the window slides; reports that leave it are fixed with their track: the track's
 filtered state becomes its *anchor*, from which the track continues inside the window, and whose
-identity it keeps.
+identity it keeps. An anchor is dropped d̄ + 1 scans after its report, or with ``still_misses``
+(a target that stood still) that many scans after it where it lies inside the sensor field.
 """
 
 from __future__ import annotations
@@ -103,7 +104,7 @@ class ScanWindow:
                 track.anchor = Anchor(track.label, k, t, ax, ay, 1)
             else:
                 a = track.anchor
-                sx, sy, _ = self._advance(a.x, a.y, a.t, rep)
+                sx, sy, _ = self._advance(a.x, a.y, a.t, rep, a.scan)
                 track.anchor = Anchor(a.identity, k, t, sx, sy, a.reports + 1)
             track.reports = tuple(r for r in track.reports if r != rid)
         for rid in ids:
@@ -127,7 +128,8 @@ class ScanWindow:
     def _expire_anchors(self) -> None:
         keep = []
         for track in self._tracks:
-            if not track.reports and (track.anchor is None or self._scan - track.anchor.scan > self.config.max_misses + 1):
+            a = track.anchor
+            if not track.reports and (a is None or not self._may_follow(a.scan, a.x[0], a.y[0])):
                 continue
             if track.anchor is None and len(track.reports) < 2:
                 continue
@@ -140,12 +142,19 @@ class ScanWindow:
 
     # ------------------------------------------------------------------ scoring
 
-    def _advance(self, sx, sy, t: float, rep: WindowReport):
-        """Predict the per-axis states from time ``t`` (s) to ``rep``'s and update them with it:
-        (state x, state y, log-likelihood of the innovations)."""
-        q = self.config.process_noise
-        sx, lx = kf_update(kf_predict(sx, rep.t - t, q), rep.x, rep.rx)
-        sy, ly = kf_update(kf_predict(sy, rep.t - t, q), rep.y, rep.ry)
+    def _advance(self, sx, sy, t: float, rep: WindowReport, scan: int):
+        """Predict the per-axis states from time ``t`` (s, scan ``scan``) to ``rep``'s and
+        update them with it: (state x, state y, log-likelihood of the innovations). After a gap
+        of over d̄ + 1 scans (``still_misses``) the target stood still: it is where it was, spread
+        by half ``still_reach``, and walks on at a velocity drawn afresh."""
+        c = self.config
+        if rep.scan - scan > c.max_misses + 1:
+            spread, v0 = (c.still_reach / 2) ** 2, c.initial_speed ** 2
+            sx, sy = (sx[0], 0.0, sx[2] + spread, 0.0, v0), (sy[0], 0.0, sy[2] + spread, 0.0, v0)
+        else:
+            sx, sy = kf_predict(sx, rep.t - t, c.process_noise), kf_predict(sy, rep.t - t, c.process_noise)
+        sx, lx = kf_update(sx, rep.x, rep.rx)
+        sy, ly = kf_update(sy, rep.y, rep.ry)
         return sx, sy, lx + ly
 
     def _start(self, track: ChainTrack):
@@ -161,12 +170,33 @@ class ScanWindow:
     # ------------------------------------------------------------------ gate
 
     def _follows(self, a_scan: int, a_t: float, ax: float, ay: float, a_var: float, rid: int) -> bool:
+        """Whether report ``rid`` may follow, in a track, a report or anchor of scan ``a_scan``
+        at time ``a_t`` (s) and (``ax``, ``ay``) with position variance ``a_var``: at most
+        d̄ + 1 scans later and within v̄·Δt plus ``gate_sigmas`` σ of it; or, for a target that
+        stood still (``still_misses``), later and within ``still_reach`` plus those σ."""
+        c = self.config
         rep = self._reports[rid]
         gap = rep.scan - a_scan
-        if gap < 1 or gap > self.config.max_misses + 1:
+        if gap < 1:
             return False
-        reach = self.config.max_speed * (rep.t - a_t) + self.config.gate_sigmas * math.sqrt(a_var + max(rep.rx, rep.ry))
+        if gap <= c.max_misses + 1:
+            reach = c.max_speed * (rep.t - a_t) + c.gate_sigmas * math.sqrt(a_var + max(rep.rx, rep.ry))
+        elif self._may_follow(a_scan, ax, ay, rep.scan):
+            reach = c.still_reach + c.gate_sigmas * math.sqrt(a_var + max(rep.rx, rep.ry))
+        else:
+            return False
         return (rep.x - ax) ** 2 + (rep.y - ay) ** 2 <= reach * reach
+
+    def _may_follow(self, a_scan: int, ax: float, ay: float, scan: int | None = None) -> bool:
+        """Whether a report of ``scan`` (default: the current one) may still follow a track that
+        ended at scan ``a_scan`` at (``ax``, ``ay``): within d̄ + 1 scans, or within
+        ``still_misses`` + 1 where it ended ``still_depth`` or more inside the sensor field."""
+        c = self.config
+        gap = (self._scan if scan is None else scan) - a_scan
+        if gap <= c.max_misses + 1:
+            return True
+        depth = self.field_depth
+        return gap <= c.still_misses + 1 and depth is not None and depth(ax, ay) >= c.still_depth
 
     def _add_gates(self, ids: list[int]) -> None:
         """Gates for the new scan's reports ``ids``, which join the gates of the reports they may follow."""

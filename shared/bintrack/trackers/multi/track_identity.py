@@ -9,7 +9,9 @@ more than ``coast`` and at most d̄ scans, could be its target: the newcomer is 
 ``gate_sigmas`` σ of where the old track predicts it (σ² the two position variances summed), or
 its first report lies in the old track's gate. The old track is shown instead, predicted. If it
 stays unreported for over d̄ scans it can no longer continue, and the newcomer inherits its
-identity. And a track published for the first time takes the identity of the nearest published
+identity; unless, with ``still_misses`` (real PIR), its target may be standing still where it was
+last reported: then the old track keeps its identity while it may still go on from there. And a
+track published for the first time takes the identity of the nearest published
 track that has ended (left the MAP) whose last report its first one could follow, if any: the
 chain found a new target more likely than a long gap, but for the user it is most likely the
 same person. Failing that, it is re-identified: it takes the identity of the track last shown at
@@ -52,15 +54,18 @@ class TrackIdentity:
 
     def _label(self) -> None:
         """Give each MAP track without an anchor the identity most of its reports last had. An
-        identity held by a track that can no longer be extended (unreported for over d̄ scans)
-        passes to such a track; the old holder gets an identity nobody has seen."""
+        identity held by a track that can no longer be extended (unreported for over d̄ scans,
+        and not one that may go on where its target stood still, ``still_misses``) passes to
+        such a track; the old holder gets an identity nobody has seen."""
         c = self.config
         holders = {}
         for t in self._tracks:
             if t.anchor is not None:
                 t.label = t.anchor.identity
                 holders[t.label] = t
-        taken = {label for label, t in holders.items() if self._scan - self._end_of(t)[0] <= c.max_misses}
+        # a track that may still go on where its target stood still (still_misses) keeps its identity
+        taken = {label for label, t in holders.items() if self._scan - self._end_of(t)[0] <= c.max_misses
+                 or (c.still_misses and not t.reports and self._may_follow(t.anchor.scan, t.anchor.x[0], t.anchor.y[0]))}
         for t in sorted((t for t in self._tracks if t.anchor is None), key=lambda t: t.reports):
             votes: dict[int, int] = {}
             for r in t.reports:
@@ -78,10 +83,10 @@ class TrackIdentity:
 
     def _predicted(self, track: ChainTrack, t: float):
         """(state x, state y, reports in all) of ``track``, filtered and predicted to time ``t`` (s)."""
-        sx, sy, _, last_t, count, rest = self._start(track)
+        sx, sy, last_scan, last_t, count, rest = self._start(track)
         for rep in rest:
-            sx, sy, _ = self._advance(sx, sy, last_t, rep)
-            last_t = rep.t
+            sx, sy, _ = self._advance(sx, sy, last_t, rep, last_scan)
+            last_scan, last_t = rep.scan, rep.t
         q = self.config.process_noise
         return kf_predict(sx, t - last_t, q), kf_predict(sy, t - last_t, q), count + len(rest)
 
