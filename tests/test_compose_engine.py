@@ -53,6 +53,8 @@ if _missing:
                 "the compose files are not run in a container engine", allow_module_level=True)
 if os.geteuid() != 0:
     pytest.skip("the compose files run under rootful podman: run as root", allow_module_level=True)
+# The first test builds the base and the image (each may take 3 HUNG) before it runs.
+pytestmark = pytest.mark.timeout(5 * HUNG)
 
 # The base: Python 3.11 from Debian's own packages (docs, manuals and translations left out).
 SUITE = "bookworm"
