@@ -193,14 +193,32 @@ def test_services_killed_mid_run_lose_only_what_is_logged(grid_slice, offline_ro
     from bintrack.live.recording_files import FLUSH_INTERVAL, FLUSH_SPAN
 
     recording = tmp_path / "run.mcap"
-    # at --speed 0 the default 0.5 s ticks play the 20 s slice in a fraction of a second, over
-    # before a kill at 8 s could land; 0.05 s ticks pace it over seconds
-    fine = ("--clock-period", "0.05") if speed == 0 else ()
+    # at --speed 0 the default 0.5 s ticks play the 20 s slice in a fraction of a second; 0.01 s
+    # ticks pace it over about two seconds
+    fine = ("--clock-period", "0.01") if speed == 0 else ()
     up = Up(str(grid_slice), "--tracker", tracker, "--speed", str(speed), *fine, "--record", str(recording),
             "--exit-at-end")
-    for n, victim in enumerate(victims):
-        up.event_time_at_least(8.0 if speed == 0 else 4.0 * (n + 1))
-        os.kill(up.service_pid(victim), signal.SIGKILL)
+    up.wait_for(lambda line: line.startswith("up: router on"), "the services started")
+    due = [(8.0 if speed == 0 else 4.0 * (n + 1), up.service_pid(victim)) for n, victim in enumerate(victims)]
+    killed = threading.Event()
+
+    def on_clock(sample) -> None:
+        # kills on the clock tick itself: up's progress lines come 0.2 s apart, and at --speed 0
+        # the slice can reach its end between two of them, before a kill seen from them lands
+        t = decode(Clock, sample.payload.to_bytes()).t
+        while due and due[0][0] <= t:
+            os.kill(due.pop(0)[1], signal.SIGKILL)
+        if not due:
+            killed.set()
+
+    session = zenoh.open(client_config([up.endpoint]))
+    subscriber = session.declare_subscriber(Keys(open_dataset(grid_slice).deployment.name).clock(), on_clock)
+    try:
+        assert killed.wait(HUNG), up.log[-4000:]
+    finally:
+        subscriber.undeclare()
+        session.close()
+    for victim in victims:
         up.wait_for(lambda line: line.startswith(f"up: {victim} killed by SIGKILL"), f"{victim}'s death logged")
         up.wait_for(lambda line: line.startswith(f"up: {victim} restarted"), f"{victim}'s restart logged")
     assert up.finish() == 0, up.log[-4000:]
