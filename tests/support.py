@@ -2,7 +2,8 @@
 
 * paths: the repository, its datasets, the real recordings beside it;
 * ``HUNG``, the one timeout: every wait is on an event (a message, a log line, a liveliness
-  change, an exit), and its timeout only fails a hung run; a loaded CPU is not one;
+  change, an exit), and its timeout only fails a hung run; a loaded CPU is not one (pytest-timeout,
+  set in pyproject.toml, ends a test hung anywhere else, with every thread's stack);
 * ``bintrack(*args)`` and ``python_module``: a command in a subprocess, output captured;
 * ``ServiceProcess``: a service started as ``python -m bintrack.services.<name>``, logging to a file;
 * ``wait_until`` and ``wait_logged``: wait on a condition or a log line;
