@@ -1,6 +1,6 @@
 """Real PIR: the tracker's choices tried on the selection sets only (issue 38, second round).
 
-    .venv/bin/python benchmarks/real_pir_choices.py [--data ../shared/realdata/irtracking] [--seeds N] [--jobs 2] [--variant NAME]
+    .venv/bin/python benchmarks/real_pir_choices.py [--data ../shared/realdata/irtracking] [--seeds N] [--sim-seeds K] [--jobs 2] [--variant NAME]
 
 Never r1-medium (the sequence reported by ``benchmarks/real_sensors.py``). The sets:
 
@@ -14,6 +14,8 @@ Never r1-medium (the sequence reported by ``benchmarks/real_sensors.py``). The s
 * ``crowd``/``crowd-soft``: as ``sim``/``soft`` with a denser room: every second person of
   r1-easy walks a second time, mirrored across the room (x → 8.6 − x) and 50 s later (wrapping
   round), 5.1 people on average and up to 7, as crowded as r1-medium is said to be.
+
+Each simulated set is tracked with mcmcda seed 0, or seeds 0..K−1 with ``--sim-seeds K``.
 
 Each variant changes one setting of :mod:`bintrack.trackers.multi.pir_settings`, or gives the
 tracks a fixed lag (:mod:`bintrack.trackers.multi.fixed_lag`); printed per set:
@@ -47,8 +49,11 @@ VARIANTS = {
     "new target at 4 nats, not 2": ({"min_gain": 4.0}, {}),
     "birth rate 3e-4 per m2, not 1e-3": ({}, {"birth_rate": 3e-4}),
     "report pd 0.7, not 0.6": ({}, {"pd": 0.7}),
-    "q 0.1, not 0.02": ({}, {"process_noise": 0.1}),
-    "q 0.5, not 0.02": ({}, {"process_noise": 0.5}),
+    "q 0.1, not 0.035": ({}, {"process_noise": 0.1}),
+    "q 0.5, not 0.035": ({}, {"process_noise": 0.5}),
+    "q 0.02 (paper 004's outdoor walkers), not 0.035": ({}, {"process_noise": 0.02}),
+    "q 0.03, not 0.035": ({}, {"process_noise": 0.03}),
+    "q 0.04, not 0.035": ({}, {"process_noise": 0.04}),
     "window 10 scans, not 5": ({}, {"window": 10}),
     "new track speed 1.0 m/s, not 1.5": ({}, {"initial_speed": 1.0}),
     "blob split at 5 nats, not 8": ({"expected_split_gain": 5.0}, {}),
@@ -81,6 +86,7 @@ VARIANTS = {
     "standing still: prior 0.05, not 0.01": ({}, {"still_prior": 0.05}),
     "standing still up to 12 scans (6 s), not 40": ({}, {"still_misses": 12}),
     "lag 6, no track kept for a person standing still": ({}, {"still_misses": 0}, 6),
+    "lag 6, q 0.02, not 0.035": ({}, {"process_noise": 0.02}, 6),
 }
 """name → (FusionConfig changes, MCMCDAConfig changes[, fixed lag in scans: ``bintrack track --lag``])"""
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
@@ -138,7 +144,7 @@ def soft_like(like: Path, out: Path) -> Path:
     return out
 
 
-def datasets(data: Path, work: Path, seeds: int) -> list[tuple[str, Path, int]]:
+def datasets(data: Path, work: Path, seeds: int, sim_seeds: int = 1) -> list[tuple[str, Path, int]]:
     from real_sensors import import_sequence
 
     stated = import_sequence(data, "r1-easy", work / "stated", "--range", "0.7")
@@ -148,13 +154,13 @@ def datasets(data: Path, work: Path, seeds: int) -> list[tuple[str, Path, int]]:
     for name, like in (("sim", fitted), ("crowd", crowd)):
         for s in range(1, 5 if name == "sim" else 4):
             bintrack("simulate", "recording", "--like", str(like), "--seed", str(s), "--out", str(work / f"{name}{s}"))
-            runs.append((name, work / f"{name}{s}", 0))
+            runs.extend((name, work / f"{name}{s}", k) for k in range(sim_seeds))
         soft = soft_like(like, work / f"{name}-soft-like")
         for s in range(1, 4):
             raw = work / f"{name}-soft{s}-raw"
             bintrack("simulate", "recording", "--like", str(soft), "--seed", str(s), "--out", str(raw))
-            runs.append((f"{name}-soft".replace("sim-", ""), calibrate_blind(stated, raw / "events.csv", raw / "truth.csv",
-                                                                          work / f"{name}-soft{s}"), 0))
+            fit = calibrate_blind(stated, raw / "events.csv", raw / "truth.csv", work / f"{name}-soft{s}")
+            runs.extend((f"{name}-soft".replace("sim-", ""), fit, k) for k in range(sim_seeds))
     return runs
 
 
@@ -185,6 +191,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[1] / ".." / "shared" / "realdata" / "irtracking")
     parser.add_argument("--seeds", type=int, default=5, help="mcmcda seeds on r1-easy (default 5)")
+    parser.add_argument("--sim-seeds", type=int, default=1, help="mcmcda seeds on each simulated set (default 1)")
     parser.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
     parser.add_argument("--variant", action="append", choices=list(VARIANTS)[1:], metavar="NAME",
                         help="only this variant beside today's settings (repeatable; default: all of them)")
@@ -197,7 +204,7 @@ def main() -> int:
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         say("real_pir_choices: importing r1-easy, calibrating it and simulating the selection sets")
-        runs = datasets(args.data, Path(tmp), args.seeds)
+        runs = datasets(args.data, Path(tmp), args.seeds, args.sim_seeds)
         chosen = [next(iter(VARIANTS)), *args.variant] if args.variant else list(VARIANTS)
         jobs = [(v, name, path, seed) for v in chosen for name, path, seed in runs]
         results = []
