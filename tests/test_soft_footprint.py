@@ -60,7 +60,8 @@ def test_only_a_fitted_deployment_gets_the_real_pir_settings():
     fusion, config = pir_settings(_room(hold=0.0), FusionConfig(), MCMCDAConfig())
     assert fusion.soft_spread == 0.5 and fusion.threshold == 2
     assert fusion.evidence_reference is None and config.exit_depth is None  # chosen outdoors, not tried here
-    assert config.max_misses == 5 and config.coast == MCMCDAConfig().coast
+    assert config.max_misses == 5 and config.coast == 2  # a person unreported for a scan is still shown
+    assert config.process_noise == 0.035  # people in a room turn more than walkers crossing a field
     assert (config.entry_depth, config.entry_gain) == (1.0, 4.0)  # people coming in are shown from one report
     assert GridFusion(_room(hold=0.0), fusion).soft.spread == pytest.approx(np.full(5, 0.6))
 
