@@ -211,7 +211,8 @@ def test_up_with_regions_restarts_a_killed_service_and_loses_nothing(field, tmp_
     bintrack("export", str(recording), "--what", "tracks", "--out", str(tmp_path / "live.csv"), cwd=tmp_path, check=True)
     live, offline = read_tracks(tmp_path / "live.csv"), read_tracks(field / "regions.csv")
     assert [(r.t, r.track) for r in live] == [(r.t, r.track) for r in offline], up.log[-6000:]
-    assert max(abs(a.x - b.x) + abs(a.y - b.y) for a, b in zip(live, offline)) < 1e-6
+    moved = [(a.t, a.track, (a.x, a.y), (b.x, b.y)) for a, b in zip(live, offline) if abs(a.x - b.x) + abs(a.y - b.y) >= 1e-6]
+    assert not moved, f"(t, track, live x y, offline x y) where they differ: {moved[:10]}\n{up.log[-6000:]}"
 
 
 # ------------------------------------------------------------------ the mesh under the secure profile
