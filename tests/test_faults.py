@@ -16,6 +16,7 @@ import subprocess
 import tempfile
 import sys
 import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -172,6 +173,31 @@ def exported_tracks(recording: Path, tmp: Path) -> list:
 REAL_TIME = pytest.mark.slow
 
 
+@contextmanager
+def kills_on_the_clock(endpoint: str, net: str, due: list[tuple[float, int]]):
+    """SIGKILL each (t, pid) of ``due`` (t ascending) on the first clock tick of ``net`` (read
+    through ``endpoint``) at or past t s of event time: up's progress lines come 0.2 s apart,
+    and at --speed 0 a run can reach its end between two of them, before a kill seen from them
+    lands. Yields an event set once all are killed; the subscription ends with the block."""
+    due = list(due)
+    killed = threading.Event()
+
+    def on_clock(sample) -> None:
+        t = decode(Clock, sample.payload.to_bytes()).t
+        while due and due[0][0] <= t:
+            os.kill(due.pop(0)[1], signal.SIGKILL)
+        if not due:
+            killed.set()
+
+    session = zenoh.open(client_config([endpoint]))
+    subscriber = session.declare_subscriber(Keys(net).clock(), on_clock)
+    try:
+        yield killed
+    finally:
+        subscriber.undeclare()
+        session.close()
+
+
 @pytest.mark.parametrize("tracker, victims, speed", [
     ("mcmcda", ["sensor_agent"], 0),
     ("mcmcda", ["basestation"], 0),
@@ -200,24 +226,8 @@ def test_services_killed_mid_run_lose_only_what_is_logged(grid_slice, offline_ro
             "--exit-at-end")
     up.wait_for(lambda line: line.startswith("up: router on"), "the services started")
     due = [(8.0 if speed == 0 else 4.0 * (n + 1), up.service_pid(victim)) for n, victim in enumerate(victims)]
-    killed = threading.Event()
-
-    def on_clock(sample) -> None:
-        # kills on the clock tick itself: up's progress lines come 0.2 s apart, and at --speed 0
-        # the slice can reach its end between two of them, before a kill seen from them lands
-        t = decode(Clock, sample.payload.to_bytes()).t
-        while due and due[0][0] <= t:
-            os.kill(due.pop(0)[1], signal.SIGKILL)
-        if not due:
-            killed.set()
-
-    session = zenoh.open(client_config([up.endpoint]))
-    subscriber = session.declare_subscriber(Keys(open_dataset(grid_slice).deployment.name).clock(), on_clock)
-    try:
+    with kills_on_the_clock(up.endpoint, open_dataset(grid_slice).deployment.name, due) as killed:
         assert killed.wait(HUNG), up.log[-4000:]
-    finally:
-        subscriber.undeclare()
-        session.close()
     for victim in victims:
         up.wait_for(lambda line: line.startswith(f"up: {victim} killed by SIGKILL"), f"{victim}'s death logged")
         up.wait_for(lambda line: line.startswith(f"up: {victim} restarted"), f"{victim}'s restart logged")
@@ -296,28 +306,18 @@ def test_router_killed_and_restarted_loses_nothing(grid_slice, offline_rows, tmp
                               endpoint=endpoint)
              for c in stack_commands(tracker="mcmcda", endpoint="tcp/router:7447", net=net, source=str(grid_slice),
                                      speed=speed, record=str(recording))}
-    killed = threading.Event()
-
-    def on_clock(sample) -> None:  # kills the router the moment event time reaches 10 s
-        if decode(Clock, sample.payload.to_bytes()).t >= 10.0 and not killed.is_set():
-            router.kill()
-            killed.set()
-
-    session = zenoh.open(client_config([endpoint]))
-    subscriber = session.declare_subscriber(Keys(net).clock(), on_clock)
     try:
-        assert killed.wait(HUNG), procs["replay"].log
-        router.wait()
-        for proc in procs.values():
-            wait_logged(proc, lambda log: "lost its router" in log, f"{proc.name} logging the loss")
-        router = start_router(endpoint)
-        for proc in procs.values():
-            wait_logged(proc, lambda log: "reached again" in log, f"{proc.name} logging the return")
-        assert procs["replay"].wait(HUNG) == 0, procs["replay"].log
-        assert procs["recorder"].wait(HUNG) == 0, procs["recorder"].log
+        with kills_on_the_clock(endpoint, net, [(10.0, router.pid)]) as killed:  # the router, at 10 s
+            assert killed.wait(HUNG), procs["replay"].log
+            router.wait()
+            for proc in procs.values():
+                wait_logged(proc, lambda log: "lost its router" in log, f"{proc.name} logging the loss")
+            router = start_router(endpoint)
+            for proc in procs.values():
+                wait_logged(proc, lambda log: "reached again" in log, f"{proc.name} logging the return")
+            assert procs["replay"].wait(HUNG) == 0, procs["replay"].log
+            assert procs["recorder"].wait(HUNG) == 0, procs["recorder"].log
     finally:
-        subscriber.undeclare()
-        session.close()
         router.terminate()
         router.wait()
     assert "holding event time" in procs["replay"].log
