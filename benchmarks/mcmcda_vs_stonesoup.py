@@ -137,17 +137,20 @@ def load_case(name: str, path: Path) -> Case:
 # --------------------------------------------------------------------------- ours
 
 
-def plain_reports(dataset, evidence_reference: float | None = None) -> list:
+def plain_reports(dataset, evidence_reference: float | None = None, multiplicity: bool = False) -> list:
     """Stone Soup's input on ``dataset``: the fusion's reports (``PositionReports`` per scan)
     without the track aid, which Stone Soup cannot give (so without the copies made for
-    unresolved targets either), and with the bars in fixed nats, as the peers were tuned on them
-    (``evidence_reference``: bars that grow with the sensors' evidence, as ours, instead)."""
+    unresolved targets either), with the bars in fixed nats and targets counted over the union
+    of the disks, as the peers were tuned on them (``evidence_reference``: bars that grow with
+    the sensors' evidence, as ours, instead; ``multiplicity``: each target detected on its own,
+    as ours now counts them, ``FusionConfig.multiplicity``)."""
     from bintrack.bus_payloads import PositionReports
     from bintrack.pipeline import run_tracker
     from bintrack.trackers.multi.fusion_config import FusionConfig
     from bintrack.trackers.multi.tracker import MCMCDATracker
 
-    plain = MCMCDATracker(dataset.deployment, FusionConfig(track_aided=False, evidence_reference=evidence_reference))
+    plain = MCMCDATracker(dataset.deployment, FusionConfig(track_aided=False, evidence_reference=evidence_reference,
+                                                           multiplicity=multiplicity))
     return [out for out in run_tracker(dataset, plain) if isinstance(out, PositionReports)]
 
 

@@ -29,7 +29,8 @@ the same mix of settings). On each grid:
   then one parameter at a time);
 * the peers' input has the fusion's bars in fixed nats, as they were first tuned;
   ``--peer-bars scaled`` gives them ours, which grow with the sensors' evidence (docs/peers.md
-  compares the two);
+  compares the two); so is its count of targets, over the union of the disks:
+  ``--peer-multiplicity`` gives them ours, each target detected on its own;
 * ``--conditions N``: N grids per row of harder conditions (``benchmarks/multi_conditions.py``),
   ours with its defaults beside each Stone Soup tracker with the setting chosen above.
 
@@ -211,6 +212,14 @@ VARIANTS: dict[str, dict] = {
     "su3": {"fusion": {"shared_unreported": 3}},
     "esg3": {"fusion": {"expected_split_gain": 3.0}},
     "esg5": {"fusion": {"expected_split_gain": 5.0}},
+    "union": {"fusion": {"multiplicity": False, "expected_gain": 1.0, "expected_split_gain": 4.0}},
+    "union-e0": {"fusion": {"multiplicity": False, "expected_gain": 0.0}},
+    "mult": {"fusion": {"expected_gain": 1.0, "expected_split_gain": 4.0}},
+    "mult-e0": {"fusion": {"expected_split_gain": 4.0}},
+    "mult-e0.5": {"fusion": {"expected_gain": 0.5, "expected_split_gain": 3.0}},
+    "mult-e-0.5": {"fusion": {"expected_gain": -0.5, "expected_split_gain": 3.0}},
+    "mult-esg2.5": {"fusion": {"expected_split_gain": 2.5}},
+    "mult-esg3": {"fusion": {"expected_split_gain": 3.0}},
     "nosplit-expected": {"fusion": {"min_gain": 3.0, "expected_split_gain": float("inf")}},
     "shared-before": {"fusion": {"min_gain": 3.0, "shared_speed": 0.5, "shared_age": 6, "shared_edge": 1.0}},
     "issue21-before": {"fusion": {"min_gain": 3.0, "expected_split_gain": float("inf"), "shared_speed": 0.5, "shared_age": 6,
@@ -254,12 +263,13 @@ def run_ours(args) -> tuple:
         case.config = tracker.mcmcda.config
         scores.append(vs.score(tracks, case, [whole / max(len(reports), 1)]))
     if variant == "default":
-        case.plain_reports = vs.plain_reports(data, PEER_BARS)
+        case.plain_reports = vs.plain_reports(data, PEER_BARS, PEER_MULTIPLICITY)
     return name, scores, case
 
 
 SCORE_CACHE: Path | None = None  # scores of Stone Soup runs already made (set by main; None: none kept)
 PEER_BARS: float | None = None  # the peers' fusion: bars in fixed nats (None), or scaled from this reference (--peer-bars)
+PEER_MULTIPLICITY = False  # the peers' fusion counts each target detected on its own, as ours (--peer-multiplicity)
 PEER_SOURCES = ("mcmcda_vs_stonesoup.py", "stonesoup_peers.py", "peer_gating.py", "peer_jipda.py", "peer_mfa.py",
                 "peer_phd.py")
 
@@ -382,6 +392,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--peer-bars", choices=("fixed", "scaled"), default="fixed",
                         help="the Stone Soup trackers' input: the fusion's reports with bars in fixed nats (default, "
                         "as they were tuned) or with ours, which grow with the sensors' evidence")
+    parser.add_argument("--peer-multiplicity", action="store_true",
+                        help="the Stone Soup trackers' input counts each target detected on its own, as ours does "
+                        "(FusionConfig.multiplicity); default: over the union of the disks, as they were tuned")
     parser.add_argument("--fresh", action="store_true",
                         help="run every Stone Soup setting again (default: reuse the scores kept under --cache)")
     parser.add_argument("--conditions-plot", type=Path, default=DEFAULT_CONDITIONS_PLOT,
@@ -425,11 +438,12 @@ def main(argv: list[str] | None = None) -> int:
             print(f"    {name}: {command(spec)}")
     print(flush=True)
 
-    global SCORE_CACHE, PEER_BARS
+    global SCORE_CACHE, PEER_BARS, PEER_MULTIPLICITY
     SCORE_CACHE = None if args.fresh else args.cache / "scores"
     from bintrack.trackers.multi.fusion_config import FusionConfig
     PEER_BARS = FusionConfig().evidence_reference if args.peer_bars == "scaled" else None
-    ctx = multiprocessing.get_context("fork")  # the workers see SCORE_CACHE and PEER_BARS
+    PEER_MULTIPLICITY = args.peer_multiplicity
+    ctx = multiprocessing.get_context("fork")  # the workers see SCORE_CACHE, PEER_BARS and PEER_MULTIPLICITY
     with ctx.Pool(args.jobs) as pool:
         def progress(label, jobs, fn):
             out = []

@@ -88,6 +88,9 @@ VARIANTS = {
     "standing still up to 12 scans (6 s), not 40": ({}, {"still_misses": 12}),
     "lag 6, no track kept for a person standing still": ({}, {"still_misses": 0}, 6),
     "lag 6, q 0.02, not 0.035": ({}, {"process_noise": 0.02}, 6),
+    "targets detected independently (multiplicity)": ({"multiplicity": True}, {}),
+    "multiplicity, a track's target kept on 0 nats, not 1": ({"multiplicity": True, "expected_gain": 0.0}, {}),
+    "multiplicity, 0 nats, blob split at 6 nats": ({"multiplicity": True, "expected_gain": 0.0, "expected_split_gain": 6.0}, {}),
 }
 """name → (FusionConfig changes, MCMCDAConfig changes[, fixed lag in scans: ``bintrack track --lag``])"""
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")

@@ -370,11 +370,12 @@ def test_a_field_described_in_feet_is_tracked_like_the_same_field_in_metres():
 
     in_m, in_ft = tracks(metres), tracks(feet)
     assert [[tr.track for tr in ts.tracks] for ts in in_ft] == [[tr.track for tr in ts.tracks] for ts in in_m]
-    # equal up to rounding: a gain summed in another order can pick a neighbouring cell
+    # equal up to rounding: a gain summed in another order can pick a neighbouring cell (1 m
+    # away), which moves a report and the track's filtered position by a tenth of that or less
     for a, b in zip(in_m, in_ft):
         for ta, tb in zip(a.tracks, b.tracks):
-            assert math.hypot(tb.x * FOOT - ta.x, tb.y * FOOT - ta.y) < 0.05
-            assert math.hypot(tb.vx * FOOT - ta.vx, tb.vy * FOOT - ta.vy) < 0.05
+            assert math.hypot(tb.x * FOOT - ta.x, tb.y * FOOT - ta.y) < 0.1
+            assert math.hypot(tb.vx * FOOT - ta.vx, tb.vy * FOOT - ta.vy) < 0.1
 
 
 def test_mcmcda_parameters_in_metres_convert_to_feet():

@@ -67,6 +67,9 @@ class FitScan:
         # per sensor, nats, and a last entry 0 for the padding of ``TargetFit.sums``
         self.weight = np.append(np.where(self.hits, self.grid.log_hit_ratio, self.grid.log_miss_ratio), 0.0)
         self.targets: list[_Target] = []
+        self.multiple = self.config.multiplicity
+        if self.multiple:
+            self._log_m = np.log1p(-self.grid.pd_c)  # log(1 − pd)
         self.count = np.zeros(len(self.weight), dtype=np.int32)
         """per sensor: the targets whose cell it covers (the padding's entry stays 0)"""
         self.base = self.grid.cover @ self.weight[:-1]
@@ -88,7 +91,8 @@ class FitScan:
             self.count[sensors_of[remove]] -= 1
         if add is not None:
             self.count[sensors_of[add]] += 1
-        rows = self.fit.cells_covering(touched[(self.count[touched] == 0) != before])
+        changed = touched if self.multiple else touched[(self.count[touched] == 0) != before]
+        rows = self.fit.cells_covering(changed)
         self.base[rows] = self.fit.sums(rows, self._free_weight())
         self._best.clear()
 
@@ -114,8 +118,38 @@ class FitScan:
             free[self.fit.sensors_of[c]] = False
         return free
 
+    def _counts(self, k: int | None = None, extra=()) -> np.ndarray:
+        """Per sensor: the targets covering it but target ``k``, and with targets at ``extra``."""
+        count = self.count.copy()
+        if k is not None:
+            count[self.fit.sensors_of[self.targets[k].cell]] -= 1
+        for c in extra:
+            count[self.fit.sensors_of[c]] += 1
+        return count
+
+    def _log_fires(self, n: np.ndarray) -> np.ndarray:
+        """Per sensor: log P_n, P_n = 1 − (1 − pd)^n the chance that a sensor which ``n`` ≥ 1
+        targets cover detects when each is detected on its own (``multiplicity``; P_1 = pd and
+        P_0 = pfa, as in eq. (4))."""
+        return np.log(-np.expm1(n * self._log_m))
+
+    def _marginal(self, count: np.ndarray) -> np.ndarray:
+        """Per sensor (and the padding's 0): what one more target covering it adds to ℓ (nats)
+        given ``count`` targets cover it already: eq. (4)'s weight where none does; with
+        ``multiplicity``, log(P_{n+1}/P_n) for a detection and log(1 − pd) for a miss where n do."""
+        if not self.multiple:
+            return self.weight * (count == 0)
+        n = count[:-1]
+        k = np.maximum(n, 1)
+        more = np.where(self.hits, self._log_fires(k + 1) - self._log_fires(k), self._log_m)
+        return np.append(np.where(n == 0, self.weight[:-1], more), 0.0)
+
     def _free_weight(self, k: int | None = None, extra=()) -> np.ndarray:
-        """Per sensor: its weight (nats) where ``_free``, else 0."""
+        """Per sensor: what a target there adds (nats) given every target but ``k`` and targets
+        at ``extra``: its weight where no other covers it, else 0 (with ``multiplicity``, the
+        marginal of one more covering target)."""
+        if self.multiple:
+            return self._marginal(self._counts(k, extra))
         return self.weight * self._free(k, extra)
 
     def _gains_on(self, rows: np.ndarray, k: int | None = None, extra=()) -> np.ndarray:
@@ -126,6 +160,10 @@ class FitScan:
     def _differing(self, k: int, extra=()) -> tuple[np.ndarray, np.ndarray]:
         """The cells where a target's gain given every target but ``k`` and targets at ``extra``
         differs from ``base`` (those target ``k`` or ``extra`` reach), and those gains (nats)."""
+        if self.multiple:
+            count = self._counts(k, extra)
+            rows = self.fit.cells_covering(np.flatnonzero(count != self.count))
+            return rows, self.fit.sums(rows, self._marginal(count))
         free = self._free(k, extra)
         rows = self.fit.cells_covering(np.flatnonzero((self.count == 0) != free))
         return rows, self.fit.sums(rows, self.weight * free)
@@ -200,9 +238,16 @@ class FitScan:
             if not moved:
                 return
 
-    def _total(self, free_weight: np.ndarray) -> float:
-        """ℓ of the targets that leave the sensors of ``free_weight`` (from ``_free_weight``) free, nats."""
-        return float((self.weight[:-1] - free_weight[:-1]).sum())
+    def _total(self, k: int | None = None, extra=()) -> float:
+        """ℓ (nats) of every target but ``k`` and targets at ``extra``."""
+        if not self.multiple:
+            return float((self.weight[:-1] - self._free_weight(k, extra)[:-1]).sum())
+        count = self._counts(k, extra)[:-1]
+        n = np.maximum(count, 1)
+        # n targets on a sensor: a detection log(P_n/pfa) = log(pd/pfa) + log(P_n/P_1), a miss
+        # log((1 − P_n)/(1 − pfa)) = log((1 − pd)/(1 − pfa)) + (n − 1)·log(1 − pd)
+        more = np.where(self.hits, self._log_fires(n) - self._log_fires(np.ones_like(n)), (n - 1) * self._log_m)
+        return float((self.weight[:-1] + more)[count > 0].sum())
 
     def split_one(self) -> bool:
         """Replace one target by the two that explain the scan best, if that gains min_gain (a
@@ -212,7 +257,7 @@ class FitScan:
             bar = self.config.expected_split_gain if expected else self.config.min_gain
             if bar == math.inf:
                 continue
-            best_pair, best_total = None, self._total(self._free_weight()) + bar
+            best_pair, best_total = None, self._total() + bar
             # each round of the ascent depends only on the pair it starts from: the pair that
             # (pair, rounds left) ends at, and the pairs already scored (a repeat cannot win)
             ends: dict[tuple[int, int, int], tuple[int, int]] = {}
@@ -241,7 +286,7 @@ class FitScan:
                 if end in scored:
                     continue
                 scored.add(end)
-                total = self._total(self._free_weight(k, extra=pair))
+                total = self._total(k, extra=pair)
                 if total > best_total:
                     best_pair, best_total = pair, total
             if best_pair is not None:

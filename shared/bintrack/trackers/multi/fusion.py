@@ -111,6 +111,8 @@ class GridFusion:
             """per sensor: log(pd/pfa), nats, the weight of a detection in eq. (4)"""
             self.log_miss_ratio = np.log1p(-pd_c) - np.log1p(-pfa_c)
             """per sensor: log((1 − pd)/(1 − pfa)), nats, the weight of a miss"""
+        self.pd_c, self.pfa_c = pd_c, pfa_c
+        """per sensor: pd and pfa clamped into (0, 1), as eq. (4)'s weights take them"""
         stated = np.array([s.pd is not None and s.pfa is not None for s in sensors])
         self.bar_scale = bar_scale(pd_c[stated], self.log_hit_ratio[stated], self.log_miss_ratio[stated],
                                    config.evidence_reference)

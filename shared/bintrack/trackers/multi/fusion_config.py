@@ -29,14 +29,16 @@ class FusionConfig:
     min_gain: float = 4.0
     """"fit": the least gain, nats of eq. (4)'s likelihood ratio, for which a new target is placed
     (or one target is split in two); 4 chosen on the tuning half of ``benchmarks/multi_target.py``"""
-    expected_gain: float = 1.0
-    """"fit": the least support, nats, for a target placed where a track expects one"""
+    expected_gain: float = 0.0
+    """"fit": the least support, nats, for a target placed where a track expects one (0: the
+    scan favours the target being there at least as much as not; chosen with ``multiplicity``
+    on the tuning half of ``benchmarks/multi_target.py``, 1 before)"""
     expected_sigmas: float = 3.0
     """"fit": an expected target may sit within this many standard deviations of the prediction"""
-    expected_split_gain: float = 4.0
+    expected_split_gain: float = 3.5
     """"fit": the least gain, nats, for which a target placed where a track expects one is split
-    in two, the track's target (still within its gate) and a new one; ``inf``: never (4 chosen
-    on the tuning half of ``benchmarks/multi_target.py``)"""
+    in two, the track's target (still within its gate) and a new one; ``inf``: never (3.5 chosen
+    with ``multiplicity`` on the tuning half of ``benchmarks/multi_target.py``, 4 before)"""
     evidence_reference: float | None = 1.7
     """"fit": nats. ``min_gain`` and ``expected_split_gain`` hold as they are for sensors whose
     evidence of a person per covering sensor, pd·log(pd/pfa) + (1 − pd)·log((1 − pd)/(1 − pfa))
@@ -45,6 +47,12 @@ class FusionConfig:
     a fixed bar lets stray detections and split blobs through as new targets. 1.7 chosen on the
     tuning half of ``benchmarks/multi_target.py`` (paper 004's sensors, pd 0.7 and pfa 0.05,
     give 1.5); None: the bars in fixed nats"""
+    multiplicity: bool = True
+    """"fit": a sensor that n ≥ 1 targets cover detects with P_n = 1 − (1 − pd)^n, each target
+    detected on its own (as the simulator draws them), rather than with pd however many cover
+    it (eq. (4) over the union of the disks, False): a second target in an overlap gains
+    log(P_2/P_1) per detection there and loses log(1 − pd) per miss, so two people in one blob
+    are told from one (chosen on the tuning half of ``benchmarks/multi_target.py``)"""
     split: bool = True
     """"fit": try replacing each target by two"""
     shared: bool = True

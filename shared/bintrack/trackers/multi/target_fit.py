@@ -8,8 +8,13 @@ range of any of them. Eq. (4), taken over every sensor, gives X a log-likelihood
 
     ℓ(X) = Σ_{i covered by X} w_i,   w_i = log(p_i / q_i) if i detects, else log((1 − p_i)/(1 − q_i)),
 
-with p_i the sensor's pd and q_i its pfa. ℓ depends on X only through the union of the disks, so
-a target adds the weights of the sensors it covers that no other target covers (its *gain*).
+with p_i the sensor's pd and q_i its pfa. So read, ℓ depends on X only through the union of the
+disks, and a target adds the weights of the sensors it covers that no other target covers (its
+*gain*). With ``multiplicity`` (the default) each target is detected on its own, as the
+simulator draws them: a sensor that n ≥ 1 targets cover detects with P_n = 1 − (1 − p_i)^n, so
+a target also adds log(P_{n+1}/P_n) for each detection and log(1 − p_i) for each miss of a
+sensor that n others cover already. Two people in one blob fire its shared sensors more often
+than one does, and a second target there gains from that, or loses on their misses.
 
 1. **Expected targets.** A track that expects its target near (x, y), with standard deviation
    σ, places one if the scan supports it: the gain averaged over the track's Gaussian prior on
