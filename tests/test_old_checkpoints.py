@@ -30,6 +30,8 @@ from bintrack.message_codec import encode
 from bintrack.pipeline import TrackerDriver
 from bintrack.trackers import TrackerOptions, make_tracker
 from bintrack.trackers.laser.phase3_frame import Frame
+from bintrack.trackers.multi.fusion import ScanFusion
+from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.mcmcda_config import MCMCDAConfig
 from bintrack.trackers.multi.mcmcda_window import ChainTrack
 from bintrack.transition_detector import TransitionDetector
@@ -89,6 +91,9 @@ def test_a_checkpoint_of_the_version_before_the_moves_resumes_as_a_run_from_the_
     n = saved["events"]
     assert 0 < n < len(events)
     tracker = make_tracker(name, dataset.deployment, options)
+    if name == "mcmcda":  # the checkpoint goes on with the fit it was taken with: over the union of the disks
+        tracker.fusion = ScanFusion(dataset.deployment, FusionConfig(multiplicity=False, expected_gain=1.0,
+                                                                     expected_split_gain=4.0))
     if name == "adaptive-basis":
         tracker.revisions = None  # the checkpoint's version made no revisions: it resumes without them
     detector, driver = TransitionDetector(dataset.deployment), TrackerDriver(tracker)

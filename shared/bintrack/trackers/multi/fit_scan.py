@@ -70,6 +70,7 @@ class FitScan:
         self.multiple = self.config.multiplicity
         if self.multiple:
             self._log_m = np.log1p(-self.grid.pd_c)  # log(1 − pd)
+            self._sensors = np.arange(len(self.hits))
         self.count = np.zeros(len(self.weight), dtype=np.int32)
         """per sensor: the targets whose cell it covers (the padding's entry stays 0)"""
         self.base = self.grid.cover @ self.weight[:-1]
@@ -141,7 +142,12 @@ class FitScan:
             return self.weight * (count == 0)
         n = count[:-1]
         k = np.maximum(n, 1)
-        more = np.where(self.hits, self._log_fires(k + 1) - self._log_fires(k), self._log_m)
+        table = self.fit.more_hits
+        if int(k.max()) < len(table):
+            gained = table[k, self._sensors]
+        else:  # more targets on one sensor than the table holds
+            gained = self._log_fires(k + 1) - self._log_fires(k)
+        more = np.where(self.hits, gained, self._log_m)
         return np.append(np.where(n == 0, self.weight[:-1], more), 0.0)
 
     def _free_weight(self, k: int | None = None, extra=()) -> np.ndarray:

@@ -172,6 +172,14 @@ class GridFusion:
             self.counting = SoftFootprint(positions, ranges * config.soft_count, pd, pfa)
         self._fit = TargetFit(self)
 
+    def __setstate__(self, state: dict) -> None:
+        """From a checkpoint pickled before ``__reduce__`` (its tables as they were): the clamped
+        pd and pfa that ``multiplicity`` reads, from the weights it kept."""
+        self.__dict__.update(state)
+        if "pd_c" not in state:
+            self.pd_c = np.clip(np.exp(self._log_hit), 1e-9, 1 - 1e-9)
+            self.pfa_c = self.pd_c / np.exp(self.log_hit_ratio)
+
     def __reduce__(self):
         """Pickled (a live service's checkpoint) as what it is made from: its tables follow from
         the deployment and the config, and pickling them took a megabyte and a tenth of a second."""

@@ -80,6 +80,8 @@ from bintrack.trackers.multi.soft_footprint import SoftFootprint
 from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.track_expectation import Expectation
 
+# ``multiplicity``: targets covering one sensor up to which its gains are kept in a table
+_COUNTS = 32
 # Starting offsets of a split, as angles of the line through the two new targets.
 _SPLIT_ANGLES = np.arange(4) * np.pi / 4
 
@@ -99,6 +101,7 @@ class FitGrid(Protocol):
     cover: csr_matrix
     log_hit_ratio: np.ndarray
     log_miss_ratio: np.ndarray
+    pd_c: np.ndarray
     shared_speed: float
     soft: SoftFootprint | None
     counting: SoftFootprint | None
@@ -125,6 +128,18 @@ class TargetFit:
         self._split_starts: dict[int, list[tuple[int, int]]] = {}
 
     @property
+    def more_hits(self) -> np.ndarray:
+        """``multiplicity``: row n (1 ≤ n < ``_COUNTS``), per sensor, log(P_{n+1}/P_n), nats, what
+        a detection adds for one more target where n cover it (P_n = 1 − (1 − pd)^n); row 0
+        unused. Made on first use (also for a fit restored from a checkpoint made before it)."""
+        table = self.__dict__.get("_more_hits")
+        if table is None:
+            log_m = np.log1p(-self.grid.pd_c)
+            fires = [np.log(-np.expm1(n * log_m)) for n in range(1, _COUNTS + 1)]
+            table = self._more_hits = np.array([np.zeros_like(log_m)] + [fires[n] - fires[n - 1] for n in range(1, _COUNTS)])
+        return table
+
+    @property
     def sensors_of(self) -> list[np.ndarray]:
         """Per cell: the sensors covering it, in ``cover``'s order."""
         return self._sensors_of
@@ -140,8 +155,8 @@ class TargetFit:
         return total
 
     def __getstate__(self) -> dict:
-        """For a checkpoint: the fit without its table of split starts, which is made again."""
-        return {k: v for k, v in self.__dict__.items() if k != "_split_starts"}
+        """For a checkpoint: the fit without its tables of split starts and gains, which are made again."""
+        return {k: v for k, v in self.__dict__.items() if k not in ("_split_starts", "_more_hits")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)

@@ -61,7 +61,9 @@ class MCMCDATracker:
     def __setstate__(self, state: dict) -> None:
         """From a checkpoint. One taken before exits (``MCMCDAConfig.exit_depth``) goes on as a
         tracker made now would: the sensor field's edge from its fusion, and the default exit
-        depth (none for real PIR, :mod:`.pir_settings`) in its units."""
+        depth (none for real PIR, :mod:`.pir_settings`) in its units. One taken before
+        ``FusionConfig.multiplicity`` goes on with the fit its window was fused with: targets
+        over the union of the disks, and the bars it stored."""
         self.__dict__.update(state)
         chain = self.mcmcda
         if chain.field_depth is None:
@@ -71,6 +73,9 @@ class MCMCDATracker:
             real_pir = any(getattr(s, "hold", None) is not None for s in self.fusion.sensors.values())
             exit_depth = None if real_pir else MCMCDAConfig().in_units(metres_per_unit).exit_depth
             chain.config = replace(chain.config, exit_depth=exit_depth)
+        grid = self.fusion.grid
+        if "multiplicity" not in vars(grid.config):
+            grid.config = grid._fit.config = replace(grid.config, multiplicity=False)
 
     def keep_revisions(self) -> None:
         """From now on, after each scan append the MAP's association of the window's reports to
