@@ -111,8 +111,8 @@ class GridFusion:
             """per sensor: log(pd/pfa), nats, the weight of a detection in eq. (4)"""
             self.log_miss_ratio = np.log1p(-pd_c) - np.log1p(-pfa_c)
             """per sensor: log((1 − pd)/(1 − pfa)), nats, the weight of a miss"""
-        self.pd_c, self.pfa_c = pd_c, pfa_c
-        """per sensor: pd and pfa clamped into (0, 1), as eq. (4)'s weights take them"""
+        self.pd_c = pd_c
+        """per sensor: pd clamped into (0, 1), as eq. (4)'s weights take it"""
         stated = np.array([s.pd is not None and s.pfa is not None for s in sensors])
         self.bar_scale = bar_scale(pd_c[stated], self.log_hit_ratio[stated], self.log_miss_ratio[stated],
                                    config.evidence_reference)
@@ -171,14 +171,6 @@ class GridFusion:
         if config.soft_count is not None:
             self.counting = SoftFootprint(positions, ranges * config.soft_count, pd, pfa)
         self._fit = TargetFit(self)
-
-    def __setstate__(self, state: dict) -> None:
-        """From a checkpoint pickled before ``__reduce__`` (its tables as they were): the clamped
-        pd and pfa that ``multiplicity`` reads, from the weights it kept."""
-        self.__dict__.update(state)
-        if "pd_c" not in state:
-            self.pd_c = np.clip(np.exp(self._log_hit), 1e-9, 1 - 1e-9)
-            self.pfa_c = self.pd_c / np.exp(self.log_hit_ratio)
 
     def __reduce__(self):
         """Pickled (a live service's checkpoint) as what it is made from: its tables follow from
