@@ -142,6 +142,14 @@ def test_a_track_hidden_in_another_tracks_blob_gets_a_loose_shared_copy():
     assert not any(r.shared for r in fusion.reports(detecting, later))
     assert not any(r.shared for r in GridFusion(deployment, replace(HIDING, shared=False)).reports(
         detecting, crossing(vx_hidden=-1.2)))
+    # with shared_chain, only a track with a report of its own in the last scans gets copies:
+    # copies may not keep a track alive on their own (a duplicate of one person)
+    chained = GridFusion(deployment, replace(HIDING, shared_chain=2))
+    own_lately, own_long_ago, own_none = ([crossing(vx_hidden=-1.2)[0], replace(crossing(vx_hidden=-1.2)[1], unreported_own=k)]
+                                          for k in (2, 3, None))
+    assert any(r.shared for r in chained.reports(detecting, own_lately))
+    assert not any(r.shared for r in chained.reports(detecting, own_long_ago))
+    assert not any(r.shared for r in chained.reports(detecting, own_none))
 
 
 def test_no_shared_copy_near_the_edge_of_the_sensor_field_where_people_leave():

@@ -361,6 +361,8 @@ class FitScan:
         for e, hidden in enumerate(expected):
             if e in placed_for or hidden.reports < c.shared_age or hidden.unreported > c.shared_unreported:
                 continue
+            if c.shared_chain is not None and (hidden.unreported_own is None or hidden.unreported_own > c.shared_chain):
+                continue
             gaps = np.hypot(centres[:, 0] - hidden.x, centres[:, 1] - hidden.y)
             k = int(np.argmin(gaps))
             if k not in owner_of or k in copied:

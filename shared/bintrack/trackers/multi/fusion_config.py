@@ -66,6 +66,11 @@ class FusionConfig:
     """a copy is made for a track reported (or given a copy) within this many scans, counting the
     one being fused (1: in the previous scan); 2 chosen on the tuning half of
     ``benchmarks/multi_target.py``"""
+    shared_chain: int | None = None
+    """a copy is made only for a track with a report of its own (not a copy) within this many
+    scans, counting the one being fused (at most MCMCDA's window); None: copies may follow
+    copies without end (2–5 scans tried on the tuning half of ``benchmarks/multi_target.py``: no
+    better)"""
     shared_gap: float = 1.0
     """a copy is made when the hidden track's prediction is within this multiple of the
     sensing range of the report"""

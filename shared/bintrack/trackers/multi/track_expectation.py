@@ -22,3 +22,6 @@ class Expectation:
     """reports the track has taken so far"""
     unreported: int
     """scans since its last report, counting this one (1: it was reported in the previous scan)"""
+    unreported_own: int | None = None
+    """scans since its last report of its own (not a shared copy) in MCMCDA's window, counting
+    this one; None: none in the window"""

@@ -103,8 +103,10 @@ class TrackIdentity:
             sx, sy, count = self._predicted(track, t)
             if count < 2:
                 continue
+            own = [self._reports[r].scan for r in track.reports if not self._reports[r].shared]
             out.append(Expectation(x=sx[0], y=sy[0], sigma=math.sqrt(max(sx[2], sy[2])), vx=sx[1], vy=sy[1],
-                                   reports=count, unreported=self._scan + 1 - end[0]))
+                                   reports=count, unreported=self._scan + 1 - end[0],
+                                   unreported_own=self._scan + 1 - own[-1] if own else None))
         out.sort(key=lambda e: -e.reports)
         return out
 
