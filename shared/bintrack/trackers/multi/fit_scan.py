@@ -69,7 +69,7 @@ class FitScan:
         self.targets: list[_Target] = []
         self.multiple = self.config.multiplicity
         if self.multiple:
-            self._log_m = np.log1p(-self.grid.pd_c)  # log(1 − pd)
+            self._log_m = fit.log_miss_each  # log(1 − pd)
             self._sensors = np.arange(len(self.hits))
         self.count = np.zeros(len(self.weight), dtype=np.int32)
         """per sensor: the targets whose cell it covers (the padding's entry stays 0)"""
@@ -128,12 +128,6 @@ class FitScan:
             count[self.fit.sensors_of[c]] += 1
         return count
 
-    def _log_fires(self, n: np.ndarray) -> np.ndarray:
-        """Per sensor: log P_n, P_n = 1 − (1 − pd)^n the chance that a sensor which ``n`` ≥ 1
-        targets cover detects when each is detected on its own (``multiplicity``; P_1 = pd and
-        P_0 = pfa, as in eq. (4))."""
-        return np.log(-np.expm1(n * self._log_m))
-
     def _marginal(self, count: np.ndarray) -> np.ndarray:
         """Per sensor (and the padding's 0): what one more target covering it adds to ℓ (nats)
         given ``count`` targets cover it already: eq. (4)'s weight where none does; with
@@ -146,7 +140,7 @@ class FitScan:
         if int(k.max()) < len(table):
             gained = table[k, self._sensors]
         else:  # more targets on one sensor than the table holds
-            gained = self._log_fires(k + 1) - self._log_fires(k)
+            gained = self.fit.log_fires(k + 1) - self.fit.log_fires(k)
         more = np.where(self.hits, gained, self._log_m)
         return np.append(np.where(n == 0, self.weight[:-1], more), 0.0)
 
@@ -252,7 +246,7 @@ class FitScan:
         n = np.maximum(count, 1)
         # n targets on a sensor: a detection log(P_n/pfa) = log(pd/pfa) + log(P_n/P_1), a miss
         # log((1 − P_n)/(1 − pfa)) = log((1 − pd)/(1 − pfa)) + (n − 1)·log(1 − pd)
-        more = np.where(self.hits, self._log_fires(n) - self._log_fires(np.ones_like(n)), (n - 1) * self._log_m)
+        more = np.where(self.hits, self.fit.log_fires(n) - self.fit.log_fires(np.ones_like(n)), (n - 1) * self._log_m)
         return float((self.weight[:-1] + more)[count > 0].sum())
 
     def split_one(self) -> bool:

@@ -128,15 +128,28 @@ class TargetFit:
         self._split_starts: dict[int, list[tuple[int, int]]] = {}
 
     @property
+    def log_miss_each(self) -> np.ndarray:
+        """``multiplicity``: per sensor, log(1 − pd), nats, the chance that one target it covers
+        goes undetected. Made on first use (also for a fit restored from a checkpoint made before it)."""
+        log_m = self.__dict__.get("_log_miss_each")
+        if log_m is None:
+            log_m = self._log_miss_each = np.log1p(-self.grid.pd_c)
+        return log_m
+
+    def log_fires(self, n) -> np.ndarray:
+        """``multiplicity``: per sensor, log P_n, P_n = 1 − (1 − pd)^n the chance that a sensor
+        which ``n`` ≥ 1 targets cover detects when each is detected on its own (P_1 = pd and
+        P_0 = pfa, as in eq. (4)); ``n`` a number or one per sensor."""
+        return np.log(-np.expm1(n * self.log_miss_each))
+
+    @property
     def more_hits(self) -> np.ndarray:
         """``multiplicity``: row n (1 ≤ n < ``_COUNTS``), per sensor, log(P_{n+1}/P_n), nats, what
-        a detection adds for one more target where n cover it (P_n = 1 − (1 − pd)^n); row 0
-        unused. Made on first use (also for a fit restored from a checkpoint made before it)."""
+        a detection adds for one more target where n cover it; row 0 unused. Made on first use."""
         table = self.__dict__.get("_more_hits")
         if table is None:
-            log_m = np.log1p(-self.grid.pd_c)
-            fires = [np.log(-np.expm1(n * log_m)) for n in range(1, _COUNTS + 1)]
-            table = self._more_hits = np.array([np.zeros_like(log_m)] + [fires[n] - fires[n - 1] for n in range(1, _COUNTS)])
+            fires = [self.log_fires(n) for n in range(1, _COUNTS + 1)]
+            table = self._more_hits = np.array([np.zeros_like(fires[0])] + [fires[n] - fires[n - 1] for n in range(1, _COUNTS)])
         return table
 
     @property
@@ -156,7 +169,7 @@ class TargetFit:
 
     def __getstate__(self) -> dict:
         """For a checkpoint: the fit without its tables of split starts and gains, which are made again."""
-        return {k: v for k, v in self.__dict__.items() if k not in ("_split_starts", "_more_hits")}
+        return {k: v for k, v in self.__dict__.items() if k not in ("_split_starts", "_more_hits", "_log_miss_each")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
