@@ -91,9 +91,10 @@ def test_a_checkpoint_of_the_version_before_the_moves_resumes_as_a_run_from_the_
     n = saved["events"]
     assert 0 < n < len(events)
     tracker = make_tracker(name, dataset.deployment, options)
-    if name == "mcmcda":  # the checkpoint goes on with the fit it was taken with: over the union of the disks
+    if name == "mcmcda":  # the checkpoint goes on with the fit it was taken with: over the union of
+        # the disks, copies with no evidence bar
         tracker.fusion = ScanFusion(dataset.deployment, FusionConfig(multiplicity=False, expected_gain=1.0,
-                                                                     expected_split_gain=4.0))
+                                                                     expected_split_gain=4.0, shared_support=None))
     if name == "adaptive-basis":
         tracker.revisions = None  # the checkpoint's version made no revisions: it resumes without them
     detector, driver = TransitionDetector(dataset.deployment), TrackerDriver(tracker)

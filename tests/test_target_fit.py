@@ -257,6 +257,32 @@ def test_with_multiplicity_two_tracked_people_in_one_blob_keep_two_reports_more_
     assert mult_two <= union_two
 
 
+def test_copies_need_evidence_that_the_hidden_track_s_target_may_be_there():
+    # track 0 on a person; track 1 expects its target 3 m away. Alone there, track 1 is a
+    # duplicate of the person; with a second person there, it is their hidden partner
+    deployment = grid_deployment()
+    people = [(20.0, 22.0), (23.0, 22.0)]
+    tracked = [Expectation(x=x, y=y, sigma=sigma, vx=1.0, vy=0.0, reports=20, unreported=1)
+               for (x, y), sigma in zip(people, (1.0, 2.5))]
+    positions = np.array([(s.x, s.y) for s in deployment.sensors])
+
+    def copied(bar: float | None, walkers) -> float:
+        fusion = GridFusion(deployment, FusionConfig(shared_support=bar))
+        n = sum(np.hypot(positions[:, 0] - x, positions[:, 1] - y) <= 8.0 for x, y in walkers)
+        rng = np.random.default_rng(7)
+        copies = 0
+        for _ in range(300):
+            fired = rng.random(len(n)) < np.where(n > 0, 1 - 0.3 ** n, 0.05)
+            detecting = np.zeros(len(fusion.ids), dtype=bool)
+            detecting[[fusion.index[s.id] for s in deployment.sensors]] = fired
+            copies += any(r.shared for r in fusion.reports(detecting, tracked))
+        return copies / 300
+
+    assert copied(-4.0, people[:1]) <= copied(None, people[:1]) - 0.1  # 0.73 against 0.90
+    assert copied(-4.0, people) >= copied(None, people) - 0.01  # 0.27 against 0.27
+    assert copied(-1e9, people[:1]) == copied(None, people[:1])
+
+
 class _WholeGrid(FitScan):
     """The fit with every gain recomputed over the whole grid from the targets' cells by
     scipy's ``cover @ weights`` (how it was computed before gains were kept per cell and

@@ -195,16 +195,24 @@ class FitScan:
         top = float(x.max())
         return top + math.log(float(np.exp(x - top).sum()))
 
-    def place_expected(self, e: int, expectation: Expectation) -> None:
+    def _expected_target(self, e: int, expectation: Expectation) -> _Target | None:
+        """An unplaced target for expectation ``e``: its gate (cells within expected_sigmas σ of
+        the prediction) and log prior over it; None if the gate holds no cell."""
         radius = self.config.expected_sigmas * expectation.sigma
         gate = np.asarray(self.grid.cell_tree.query_ball_point((expectation.x, expectation.y), r=radius), dtype=int)
         if gate.size == 0:
-            return
+            return None
         d2 = ((self.grid.cells[gate] - (expectation.x, expectation.y)) ** 2).sum(axis=1)
         # normalised per cell of the whole Gaussian, not over the gate's covered cells: prior
         # mass beyond the sensors' reach (a target leaving) supports nothing
         log_prior = -0.5 * d2 / expectation.sigma ** 2 - math.log(2 * math.pi * expectation.sigma ** 2 / self.grid.cell ** 2)
-        target = _Target(cell=-1, expectation=e, gate=gate, log_prior=log_prior)
+        return _Target(cell=-1, expectation=e, gate=gate, log_prior=log_prior)
+
+    def place_expected(self, e: int, expectation: Expectation) -> None:
+        target = self._expected_target(e, expectation)
+        if target is None:
+            return
+        gate = target.gate
         if self._support(target, self.gains_alone[gate]) >= self.config.expected_gain:
             target.cell = int(gate[np.argmax(self._gains_on(gate))])
             self._append(target)
@@ -367,6 +375,10 @@ class FitScan:
                     or math.hypot(hidden.vx - other.vx, hidden.vy - other.vy) < self.grid.shared_speed
                     or self.grid.depth(hidden.x, hidden.y) < c.shared_edge * reach):
                 continue
+            if c.shared_support is not None:
+                target = self._expected_target(e, hidden)
+                if target is None or self._support(target, self._gains_on(target.gate)) < c.shared_support:
+                    continue
             copied.add(k)
             r = reports[k]
             loose = gaps[k] ** 2 + (0.5 * reach) ** 2

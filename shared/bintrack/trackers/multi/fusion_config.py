@@ -71,6 +71,13 @@ class FusionConfig:
     scans, counting the one being fused (at most MCMCDA's window); None: copies may follow
     copies without end (2–5 scans tried on the tuning half of ``benchmarks/multi_target.py``: no
     better)"""
+    shared_support: float | None = -4.0
+    """a copy is made only for a track whose target the scan's evidence does not rule out: its
+    support given the targets placed (log Σ π e^gain over its gate, nats) is at least this. With
+    ``multiplicity``, a second track on one person's blob pays log(1 − pd) for each of the blob's
+    sensors that missed, so a duplicate track is not kept alive on copies of its twin's reports.
+    None: no such bar (−4 chosen among −1 … −8 on the tuning half of
+    ``benchmarks/multi_target.py``)"""
     shared_gap: float = 1.0
     """a copy is made when the hidden track's prediction is within this multiple of the
     sensing range of the report"""

@@ -71,6 +71,9 @@ PIR_EXPECTED_GAIN = 1.0
 """nats: the least support for a target where a track expects one"""
 PIR_MULTIPLICITY = False
 """targets counted over the union of the footprints, eq. (4) as the paper has it"""
+PIR_SHARED_SUPPORT = None
+"""no evidence bar on shared copies: over the union of the footprints a second target in a blob
+adds nothing, so the bar (made for ``FusionConfig.multiplicity``) would tell nothing"""
 PIR_THRESHOLD = 2
 PIR_SPREAD = 0.5
 PIR_MAX_MISSES = 5
@@ -111,5 +114,5 @@ def pir_settings(deployment: Deployment, fusion: FusionConfig, config: MCMCDACon
         config = replace(config, birth_edge=DOOR_DEPTH, birth_area=(r.xmin * m, r.ymin * m, r.xmax * m, r.ymax * m))
     fusion = replace(fusion, min_gain=PIR_MIN_GAIN, expected_split_gain=PIR_SPLIT_GAIN, threshold=PIR_THRESHOLD,
                      soft_spread=PIR_SPREAD, evidence_reference=None, multiplicity=PIR_MULTIPLICITY,
-                     expected_gain=PIR_EXPECTED_GAIN)
+                     expected_gain=PIR_EXPECTED_GAIN, shared_support=PIR_SHARED_SUPPORT)
     return fusion, config

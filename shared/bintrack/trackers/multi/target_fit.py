@@ -54,7 +54,10 @@ than one does, and a second target there gains from that, or loses on their miss
    - its prediction is at least ``shared_edge`` sensing ranges inside the sensor field (the
      sensors' convex hull). Nearer the edge, a person with no support of their own has as
      likely left, and a copy would keep a departed person's track alive on someone else's
-     detections.
+     detections;
+   - the scan does not rule its target out: its support given the targets placed, log Σ π e^gain
+     over its gate, is at least ``shared_support`` nats (−4; with ``multiplicity`` a duplicate
+     of one person pays log(1 − pd) for each sensor of the blob that missed).
 
    Two people passing each other, or walking side by side, make one blob of detections, and
    binary sensors cannot resolve it. The copy keeps the hidden person's track, and its count,

@@ -62,8 +62,8 @@ class MCMCDATracker:
         """From a checkpoint. One taken before exits (``MCMCDAConfig.exit_depth``) goes on as a
         tracker made now would: the sensor field's edge from its fusion, and the default exit
         depth (none for real PIR, :mod:`.pir_settings`) in its units. One taken before
-        ``FusionConfig.multiplicity`` goes on with the fit its window was fused with: targets
-        over the union of the disks, and the bars it stored."""
+        ``FusionConfig.multiplicity`` or ``shared_support`` goes on with the fit its window was fused
+        with: targets over the union of the disks, the bars it stored, copies without an evidence bar."""
         self.__dict__.update(state)
         chain = self.mcmcda
         if chain.field_depth is None:
@@ -74,8 +74,10 @@ class MCMCDATracker:
             exit_depth = None if real_pir else MCMCDAConfig().in_units(metres_per_unit).exit_depth
             chain.config = replace(chain.config, exit_depth=exit_depth)
         grid = self.fusion.grid
-        if "multiplicity" not in vars(grid.config):
-            grid.config = grid._fit.config = replace(grid.config, multiplicity=False)
+        before = {"multiplicity": False, "shared_support": None}  # what a fit without the field did
+        missing = {k: v for k, v in before.items() if k not in vars(grid.config)}
+        if missing:
+            grid.config = grid._fit.config = replace(grid.config, **missing)
 
     def keep_revisions(self) -> None:
         """From now on, after each scan append the MAP's association of the window's reports to
