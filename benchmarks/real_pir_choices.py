@@ -91,6 +91,9 @@ VARIANTS = {
     "targets detected independently (multiplicity)": ({"multiplicity": True}, {}),
     "multiplicity, a track's target kept on 0 nats, not 1": ({"multiplicity": True, "expected_gain": 0.0}, {}),
     "multiplicity, 0 nats, blob split at 6 nats": ({"multiplicity": True, "expected_gain": 0.0, "expected_split_gain": 6.0}, {}),
+    "copies only where the scan does not rule the hidden track out (-4 nats)": ({"shared_support": -4.0}, {}),
+    "multiplicity, and copies that need evidence (-4 nats)": ({"multiplicity": True, "shared_support": -4.0}, {}),
+    "multiplicity, 0 nats, copies that need evidence (-4 nats)": ({"multiplicity": True, "expected_gain": 0.0, "shared_support": -4.0}, {}),
 }
 """name → (FusionConfig changes, MCMCDAConfig changes[, fixed lag in scans: ``bintrack track --lag``])"""
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
