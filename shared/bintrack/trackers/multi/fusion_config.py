@@ -76,8 +76,8 @@ class FusionConfig:
     support given the targets placed (log Σ π e^gain over its gate, nats) is at least this. With
     ``multiplicity``, a second track on one person's blob pays log(1 − pd) for each of the blob's
     sensors that missed, so a duplicate track is not kept alive on copies of its twin's reports.
-    None: no such bar (−4 chosen among −1 … −8 on the tuning half of
-    ``benchmarks/multi_target.py``)"""
+    None: no such bar (−4 the best of −1 … −8 on the tuning half of ``benchmarks/multi_target.py``,
+    where it ties with none; it removes a duplicate track from the conditions' row of 2 people)"""
     shared_gap: float = 1.0
     """a copy is made when the hidden track's prediction is within this multiple of the
     sensing range of the report"""
