@@ -94,6 +94,11 @@ VARIANTS = {
     "copies only where the scan does not rule the hidden track out (-4 nats)": ({"shared_support": -4.0}, {}),
     "multiplicity, and copies that need evidence (-4 nats)": ({"multiplicity": True, "shared_support": -4.0}, {}),
     "multiplicity, 0 nats, copies that need evidence (-4 nats)": ({"multiplicity": True, "expected_gain": 0.0, "shared_support": -4.0}, {}),
+    "multiplicity, a track's blob split at 12 nats, not 8": ({"multiplicity": True, "expected_split_gain": 12.0}, {}),
+    "multiplicity, a track's blob never split": ({"multiplicity": True, "expected_split_gain": float("inf")}, {}),
+    "multiplicity, 0 nats, blob split at 12 nats": ({"multiplicity": True, "expected_gain": 0.0, "expected_split_gain": 12.0}, {}),
+    "multiplicity, a track's target kept on 2 nats, not 1": ({"multiplicity": True, "expected_gain": 2.0}, {}),
+    "multiplicity, a track's target kept on 3 nats": ({"multiplicity": True, "expected_gain": 3.0}, {}),
 }
 """name → (FusionConfig changes, MCMCDAConfig changes[, fixed lag in scans: ``bintrack track --lag``])"""
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
