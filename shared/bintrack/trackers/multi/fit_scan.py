@@ -252,9 +252,11 @@ class FitScan:
             return float((self.weight[:-1] - self._free_weight(k, extra)[:-1]).sum())
         count = self._counts(k, extra)[:-1]
         n = np.maximum(count, 1)
+        table = self.fit.fires
+        fired = table[n, self._sensors] if int(n.max()) < len(table) else self.fit.log_fires(n)
         # n targets on a sensor: a detection log(P_n/pfa) = log(pd/pfa) + log(P_n/P_1), a miss
         # log((1 − P_n)/(1 − pfa)) = log((1 − pd)/(1 − pfa)) + (n − 1)·log(1 − pd)
-        more = np.where(self.hits, self.fit.log_fires(n) - self.fit.log_fires(np.ones_like(n)), (n - 1) * self._log_m)
+        more = np.where(self.hits, fired - table[1], (n - 1) * self._log_m)
         return float((self.weight[:-1] + more)[count > 0].sum())
 
     def split_one(self) -> bool:

@@ -146,13 +146,22 @@ class TargetFit:
         return np.log(-np.expm1(n * self.log_miss_each))
 
     @property
+    def fires(self) -> np.ndarray:
+        """``multiplicity``: row n (1 ≤ n ≤ ``_COUNTS``), per sensor, ``log_fires(n)``, nats; row 0
+        unused. Made on first use."""
+        table = self.__dict__.get("_fires")
+        if table is None:
+            table = self._fires = np.array([np.zeros_like(self.log_miss_each)] + [self.log_fires(n) for n in range(1, _COUNTS + 1)])
+        return table
+
+    @property
     def more_hits(self) -> np.ndarray:
         """``multiplicity``: row n (1 ≤ n < ``_COUNTS``), per sensor, log(P_{n+1}/P_n), nats, what
         a detection adds for one more target where n cover it; row 0 unused. Made on first use."""
         table = self.__dict__.get("_more_hits")
         if table is None:
-            fires = [self.log_fires(n) for n in range(1, _COUNTS + 1)]
-            table = self._more_hits = np.array([np.zeros_like(fires[0])] + [fires[n] - fires[n - 1] for n in range(1, _COUNTS)])
+            fires = self.fires
+            table = self._more_hits = np.concatenate([np.zeros_like(fires[:1]), fires[2:] - fires[1:-1]])
         return table
 
     @property
@@ -172,7 +181,7 @@ class TargetFit:
 
     def __getstate__(self) -> dict:
         """For a checkpoint: the fit without its tables of split starts and gains, which are made again."""
-        return {k: v for k, v in self.__dict__.items() if k not in ("_split_starts", "_more_hits", "_log_miss_each")}
+        return {k: v for k, v in self.__dict__.items() if k not in ("_split_starts", "_fires", "_more_hits", "_log_miss_each")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
