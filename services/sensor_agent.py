@@ -171,7 +171,8 @@ class SensorAgent(Service):
     def on_state(self, query: zenoh.Query) -> None:
         """``…/state``; ``?since=N``: also the transitions after seq N; ``?source=ID;after=N``:
         also those this instance (ID) sent after its source_seq N: then every hosted sensor
-        answers, so that the asker knows this agent was reached (nothing if ID is another)."""
+        answers, each reply saying how many there are, so that the asker knows this agent was
+        reached and got all of it (nothing if ID is another)."""
         try:
             since, after = (None if text is None else int(text) for text in (query.parameters.get("since"),
                                                                               query.parameters.get("after")))
@@ -181,10 +182,11 @@ class SensorAgent(Service):
         source = query.parameters.get("source")
         if source is not None and source != self.instance:
             return
-        for sensor_id, hosted in self.hosts.sensors.items():
-            key = self.keys.state(sensor_id)
-            if zenoh.KeyExpr(key).intersects(query.key_expr):
-                query.reply(key, encode(hosted.state(since, after)))
+        asked = [(sensor_id, hosted) for sensor_id, hosted in self.hosts.sensors.items()
+                 if zenoh.KeyExpr(self.keys.state(sensor_id)).intersects(query.key_expr)]
+        answers = len(asked) if source is not None else None
+        for sensor_id, hosted in asked:
+            query.reply(self.keys.state(sensor_id), encode(hosted.state(since, after, answers)))
 
 
 def build_parser() -> argparse.ArgumentParser:

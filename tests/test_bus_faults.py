@@ -317,6 +317,7 @@ def test_a_restarted_sensor_agent_still_serves_what_it_sent_before_its_checkpoin
     finally:
         recent.undeclare()
     assert [state.missed for state in replies] == [before], restarted.log
+    assert [state.answers for state in replies] == [1]  # one reply to a query of n0's by source
     assert "restarted; resuming from its checkpoint" in restarted.log
     assert restarted.stop() == 0
 

@@ -153,6 +153,30 @@ def test_a_departed_upstream_holds_for_the_grace_in_wall_time_however_fast_the_c
     assert mark.bound(27.0) == 30.0  # gone for good: 2 s of event time and 3 s of wall time
 
 
+def test_an_upstream_that_went_while_this_consumer_was_cut_off_is_judged_from_its_reconnection():
+    # the consumer's own router was killed: every token went at once, and the restart took 3 s;
+    # the replay saw the agent back and runs on, while this consumer's view of its token still
+    # waits for the mesh. Its grace starts again when the consumer's link is back
+    wall = [100.0]
+    mark = UpstreamWatermark({"sensor_agent"}, hold=2.0, grace=3.0, now=lambda: wall[0])
+    mark.on_liveliness("sensor_agent", "s1", True)
+    mark.reported("sensor_agent", "s1", 15.5)
+    mark.on_liveliness("sensor_agent", "s1", False)
+    assert mark.bound(15.5) == 15.5
+    wall[0] += 3.0
+    mark.reconnected()
+    assert mark.bound(19.0, 1.0) == 15.5  # without the reconnection: gone for good here
+    wall[0] += 2.9
+    assert mark.bound(22.0, 1.0) == 15.5
+    mark.on_liveliness("sensor_agent", "s1", True)  # its token back over the mesh
+    mark.reported("sensor_agent", "s1", 22.0)
+    assert mark.bound(22.5, 1.0) == 22.0
+    mark.on_liveliness("sensor_agent", "s1", False)  # and gone for good this time
+    wall[0] += 3.0
+    assert mark.bound(22.5, 1.0) == 22.0  # the next tick starts its hold
+    assert mark.bound(25.6, 1.0) == float("inf")
+
+
 def test_an_upstream_silent_behind_a_stale_token_is_taken_for_gone_until_it_reports_again():
     # a router of the mesh kept s1's token after the link to s1's site was cut (the others
     # dropped it): its reports stop while the clock goes on. Under flow control a connected

@@ -40,6 +40,8 @@ class SensorState(Message):
     value: int
     seq: int = Field(ge=0, description="seq of the last transition, 0 if none yet")
     missed: list[Transition] = Field(default_factory=list, description="transitions after the asked seq, oldest first")
+    answers: int | None = Field(None, ge=1, description="to a query by ``source``: how many replies its agent sends, one "
+                                "per sensor it hosts, so that an asker can tell an answer cut short (its router went)")
 
 
 class LocalEstimate(Message):

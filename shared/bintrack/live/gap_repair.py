@@ -113,7 +113,7 @@ class GapRepair:
         if not self.fetch_missed(selector, upto=sent):
             if source not in self.unanswered:
                 self.unanswered.add(source)
-                log.warning("%s: %s sent transitions that did not arrive and its state does not answer yet; "
+                log.warning("%s: %s sent transitions that did not arrive and its state has not answered in full yet; "
                             "its progress is held until they are fetched", self.who, source)
             return False
         if source in self.unanswered:
@@ -139,7 +139,7 @@ class GapRepair:
             if not self.fetch_missed(f"{self.keys.state()}?source={source};after={after}", upto=short.sent):
                 if source not in self.unanswered:
                     self.unanswered.add(source)
-                    log.warning("%s: %s sent transitions that did not arrive and its state does not answer yet; "
+                    log.warning("%s: %s sent transitions that did not arrive and its state has not answered in full yet; "
                                 "its progress is held until they are fetched", self.who, source)
                 return None
             self.unanswered.discard(source)
@@ -183,10 +183,14 @@ class GapRepair:
 
         The get blocks the loop on purpose: the fetched transitions must be taken before the
         next clock tick moves the watermark past them. A reply takes milliseconds; only a
-        sensor agent that is gone costs the timeout.
+        sensor agent that is gone costs the timeout. Whether it was answered: False if nobody
+        replied, or an agent asked by source sent fewer replies than it said it would (its
+        router went mid-answer: what is missing must not be named lost).
         """
         missed: list[Transition] = []
         replied = False
+        answered: set[str] = set()
+        expected = 0
         for payload in self.query(selector, 2.0):
             try:
                 state = decode(SensorState, payload)
@@ -194,7 +198,14 @@ class GapRepair:
                 self.report(selector, exc.reason)
                 continue
             replied = True
+            answered.add(state.sensor)
+            expected = max(expected, state.answers or 0)
             missed.extend(state.missed)
+        if len(answered) < expected:
+            # its router went while it answered: what did come is taken, the rest asked again
+            log.warning("%s: %s answered for %d of its %d sensors (cut short); asked again", self.who, selector,
+                        len(answered), expected)
+            replied = False
         for transition in sorted(missed, key=lambda tr: (tr.sensor, tr.seq)):
             if before is not None and (transition.sensor != before.sensor or transition.seq >= before.seq):
                 continue

@@ -77,14 +77,15 @@ class HostedSensor:
         self.history.append(transition)
         self.hosts.trail.append(transition)
 
-    def state(self, since: int | None, after_source_seq: int | None) -> SensorState:
-        """Status and seq; ``missed``: transitions with seq > ``since`` or source_seq > ``after_source_seq``."""
+    def state(self, since: int | None, after_source_seq: int | None, answers: int | None = None) -> SensorState:
+        """Status and seq; ``missed``: transitions with seq > ``since`` or source_seq > ``after_source_seq``;
+        ``answers``: how many replies the query gets from this agent (a query by source)."""
         value, seq = self.detector.status(self.id)
         missed = [tr.message() for tr in self.history
                   if (since is not None and tr.seq > since)
                   or (after_source_seq is not None and tr.source_seq > after_source_seq)]
         return SensorState(t=self.last_t if self.last_t > float("-inf") else 0.0, sensor=self.id,
-                           value=value, seq=seq, missed=missed)
+                           value=value, seq=seq, missed=missed, answers=answers)
 
 
 class HostedSensors:

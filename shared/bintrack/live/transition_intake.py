@@ -136,6 +136,8 @@ class TransitionConsumer(Service):
         raise NotImplementedError
 
     async def on_router_back(self) -> None:
+        if self.watermark is not None:
+            self.watermark.upstream.reconnected()
         if self.intake is not None:
             log.info("%s: after the outage, %s", self.name, self.intake.fetch_since_received())
 

@@ -131,6 +131,16 @@ class UpstreamWatermark:
         else:
             self.silent.discard(entry)
 
+    def reconnected(self) -> None:
+        """This service's own router is back after a loss: the instances that went meanwhile
+        are judged from now on (their hold and grace start again at the next tick), since
+        their tokens come back over the mesh only after the link, and a wait spent cut off
+        says nothing about whether they are gone. The same for the silent ones' timers."""
+        now = self.now()
+        for went in self.departed.values():
+            went[:] = [None, now]
+        self.lagging.clear()
+
     def reported(self, service: str, instance: str, t: float) -> None:
         entry = (service, instance)
         self.progress[entry] = max(t, self.progress.get(entry, -math.inf))
