@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 import tempfile
 from collections import defaultdict
@@ -40,7 +39,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from real_sensors import EVAL, SEQUENCES, bintrack, import_sequence  # noqa: E402
+from real_sensors import EVAL, SEQUENCES, bintrack, calibrated_blind, import_sequence  # noqa: E402
 
 from bintrack.calibration.sample_series import sample_series  # noqa: E402
 from bintrack.deployment_model import DiskSensor  # noqa: E402
@@ -54,19 +53,6 @@ CV_NOISE = 0.5  # m²/s³: of the two tried, 0.035 (the tracker's) and 0.5, the 
 PARTICLES = 3000
 DRAWS = 300
 ORACLES = ("random walk, online", "random walk, smoothed", "constant velocity, online", "constant velocity, smoothed")
-
-
-def calibrated(work: Path, data: Path, name: str) -> Path:
-    """The sequence imported, calibrated from its detections alone, truth.csv put back for scoring."""
-    imported = import_sequence(data, name, work / f"{name}-imported", "--range", "0.7")  # the stated footprint
-    blind = work / f"{name}-blind"
-    blind.mkdir()
-    for f in ("deployment.json", "events.csv"):
-        shutil.copyfile(imported / f, blind / f)
-    fitted = work / f"{name}-calibrated"
-    bintrack("calibrate", str(blind), "--out", str(fitted))
-    shutil.copyfile(imported / "truth.csv", fitted / "truth.csv")
-    return fitted
 
 
 def likelihoods(dataset: Path, spread: float) -> tuple[np.ndarray, dict[str, list[tuple[float, np.ndarray, np.ndarray]]], tuple]:
@@ -223,7 +209,8 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for name in SEQUENCES:
-            dataset = calibrated(work, args.data, name)
+            imported = import_sequence(args.data, name, work / f"{name}-imported", "--range", "0.7")  # the stated footprint
+            dataset = calibrated_blind(work, imported, name)
             print(f"{name}: the likelihood of every person-sample (about a minute) ...", file=sys.stderr, flush=True)
             cells, people, shape = likelihoods(dataset, args.spread)
             oracles, spread = oracle_tracks(cells, shape, people, args.q)

@@ -65,14 +65,21 @@ def scores(dataset: Path, seed: int = 0, plot: Path | None = None, *options: str
     return json.loads(bintrack("eval", str(dataset), str(tracks), *EVAL, "--json", *extra).splitlines()[0])
 
 
-def calibrated(work: Path, imported: Path, name: str) -> tuple[Path, dict]:
+def calibrated_blind(work: Path, imported: Path, name: str) -> Path:
+    """``imported`` calibrated from a copy without truth.csv (the detections alone), truth.csv put
+    back after the fit, for scoring only."""
     blind = work / f"{name}-blind"
     blind.mkdir()
     for f in ("deployment.json", "events.csv"):
         shutil.copyfile(imported / f, blind / f)
     fitted = work / f"{name}-calibrated"
     bintrack("calibrate", str(blind), "--out", str(fitted))
-    shutil.copyfile(imported / "truth.csv", fitted / "truth.csv")  # for scoring only, after the fit
+    shutil.copyfile(imported / "truth.csv", fitted / "truth.csv")
+    return fitted
+
+
+def calibrated(work: Path, imported: Path, name: str) -> tuple[Path, dict]:
+    fitted = calibrated_blind(work, imported, name)
     supervised = work / f"{name}-supervised"
     bintrack("calibrate", str(imported), "--out", str(supervised), "--supervised")
     a = {s["id"]: s for s in json.loads((fitted / "deployment.json").read_text())["sensors"]}
