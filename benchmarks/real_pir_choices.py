@@ -99,6 +99,8 @@ VARIANTS = {
     "multiplicity, 0 nats, blob split at 12 nats": ({"multiplicity": True, "expected_gain": 0.0, "expected_split_gain": 12.0}, {}),
     "multiplicity, a track's target kept on 2 nats, not 1": ({"multiplicity": True, "expected_gain": 2.0}, {}),
     "multiplicity, a track's target kept on 3 nats": ({"multiplicity": True, "expected_gain": 3.0}, {}),
+    "re-identified within 16 s, not 8": ({}, {"reidentify": 16.0}),
+    "re-identified within 4 s": ({}, {"reidentify": 4.0}),
 }
 """name → (FusionConfig changes, MCMCDAConfig changes[, fixed lag in scans: ``bintrack track --lag``])"""
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
