@@ -11,7 +11,8 @@ assignment), as CLEAR MOT counts a hit; a person left unmatched is put in the fi
 fits:
 
 * **beside someone**: a track lies within 1.5 m, but it is matched to another person (two people
-  on one blob), by the distance to the nearest other person;
+  on one blob), by the distance to the nearest other person; and how many of them a track
+  followed at most 5 samples (2.5 s) before;
 * **a report, no track**: the fusion placed a report within 1.5 m, but no track was shown there;
 * **no report**: by how many sensors within 1.5 m fired in the sample (the fusion places a new
   person on two detections, a track's person on one).
@@ -41,6 +42,7 @@ from bintrack.trackers import TrackerOptions, make_tracker  # noqa: E402
 
 HIT = 1.5  # m: CLEAR MOT's hit threshold, as the authors score it
 AREA = (0.0, 0.0, 8.0, 14.0)  # m: the tracking area the authors score in
+LOST_SINCE = 5  # samples (2.5 s): a person beside someone whose own track was lost this recently
 
 
 def classes(dataset: Path, seed: int) -> Counter:
@@ -56,10 +58,12 @@ def classes(dataset: Path, seed: int) -> Counter:
     people: dict[float, list] = {}
     for row in data.truth():
         if AREA[0] <= row.x <= AREA[2] and AREA[1] <= row.y <= AREA[3]:
-            people.setdefault(round(row.t, 3), []).append((row.x, row.y))
+            people.setdefault(round(row.t, 3), []).append((row.target, row.x, row.y))
     out = Counter()
-    for t, where in people.items():
-        here = np.array(where)
+    last_followed: dict[str, int] = {}  # person → the sample they were last followed in
+    for k_t, t in enumerate(sorted(people)):
+        names = [p[0] for p in people[t]]
+        here = np.array([p[1:] for p in people[t]])
         shown = tracks.get(t, np.zeros((0, 2)))
         dist = np.linalg.norm(here[:, None, :] - shown[None, :, :], axis=2)
         rows, cols = linear_sum_assignment(np.where(dist <= HIT, dist, 1e6)) if len(shown) else ((), ())
@@ -70,11 +74,14 @@ def classes(dataset: Path, seed: int) -> Counter:
         for i, person in enumerate(here):
             if i in matched:
                 out["followed"] += 1
+                last_followed[names[i]] = k_t
             elif len(shown) and dist[i].min() <= HIT:
                 other = np.delete(here, i, axis=0)
                 gap = np.linalg.norm(other - person, axis=1).min() if len(other) else np.inf
                 out["beside someone ≤ 1 m" if gap <= 1 else "beside someone 1-2 m" if gap <= 2
                     else "beside someone more than 2 m away"] += 1
+                if k_t - last_followed.get(names[i], -LOST_SINCE - 1) <= LOST_SINCE:
+                    out[f"  of them followed {LOST_SINCE} samples before or less"] += 1
             elif len(near) and np.linalg.norm(near - person, axis=1).min() <= HIT:
                 out["a report, no track"] += 1
             else:
@@ -100,12 +107,19 @@ def main() -> int:
         for seed in range(args.seeds):
             print(f"seed {seed} ...", file=sys.stderr, flush=True)
             runs.append(classes(dataset, seed))
-    names = sorted({name for run in runs for name in run}, key=lambda n: (n != "followed", -sum(r[n] for r in runs)))
-    total = sum(runs[0].values())
+    lost = f"  of them followed {LOST_SINCE} samples before or less"
+    names = sorted({name for run in runs for name in run if name != lost},
+                   key=lambda n: (n != "followed", -sum(r[n] for r in runs)))
+    total = sum(runs[0][name] for name in names)
     print(f"{args.sequence}: {total} annotated person-samples in the area; per run, mean (range) over seeds 0-{args.seeds - 1}")
+
+    def line(name: str, counts: list[int]) -> None:
+        print(f"  {name:<48} {np.mean(counts):7.1f} ({min(counts)}-{max(counts)})  {np.mean(counts) / total:6.1%}")
+
     for name in names:
-        counts = [run[name] for run in runs]
-        print(f"  {name:<36} {np.mean(counts):7.1f} ({min(counts)}-{max(counts)})  {np.mean(counts) / total:6.1%}")
+        line(name, [run[name] for run in runs])
+    line("beside someone, all", [sum(n for name, n in run.items() if name.startswith("beside")) for run in runs])
+    line(lost, [run[lost] for run in runs])
     return 0
 
 
