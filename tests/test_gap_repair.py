@@ -26,10 +26,8 @@ class Agent:
     def __init__(self, transitions: list[Transition]):
         self.transitions = transitions
         self.cut = 0
-        self.asked: list[str] = []
 
     def query(self, selector: str, timeout: float) -> list[bytes]:
-        self.asked.append(selector)
         after = int(selector.rsplit("after=", 1)[1])
         replies = [encode(SensorState(t=3.0, sensor=s, value=1, seq=9, answers=len(SENSORS),
                                       missed=[tr for tr in self.transitions if tr.sensor == s and tr.source_seq > after]))
