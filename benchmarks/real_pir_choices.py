@@ -101,6 +101,8 @@ VARIANTS = {
     "multiplicity, a track's target kept on 3 nats": ({"multiplicity": True, "expected_gain": 3.0}, {}),
     "re-identified within 16 s, not 8": ({}, {"reidentify": 16.0}),
     "re-identified within 4 s": ({}, {"reidentify": 4.0}),
+    "a person shown from their first report up to 2 m inside the field, not 1": ({}, {"entry_depth": 2.0}),
+    "the same up to 3 m": ({}, {"entry_depth": 3.0}),
 }
 """name → (FusionConfig changes, MCMCDAConfig changes[, fixed lag in scans: ``bintrack track --lag``])"""
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
