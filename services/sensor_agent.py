@@ -182,11 +182,11 @@ class SensorAgent(Service):
         source = query.parameters.get("source")
         if source is not None and source != self.instance:
             return
-        asked = [(sensor_id, hosted) for sensor_id, hosted in self.hosts.sensors.items()
-                 if zenoh.KeyExpr(self.keys.state(sensor_id)).intersects(query.key_expr)]
+        asked = [(key, hosted) for sensor_id, hosted in self.hosts.sensors.items()
+                 if zenoh.KeyExpr(key := self.keys.state(sensor_id)).intersects(query.key_expr)]
         answers = len(asked) if source is not None else None
-        for sensor_id, hosted in asked:
-            query.reply(self.keys.state(sensor_id), encode(hosted.state(since, after, answers)))
+        for key, hosted in asked:
+            query.reply(key, encode(hosted.state(since, after, answers)))
 
 
 def build_parser() -> argparse.ArgumentParser:
