@@ -95,11 +95,8 @@ def grid_filter(cells: np.ndarray, shape: tuple, samples: list, spread: float) -
     """The Bayes filter of one person's position on the cells (a random walk of ``spread`` m per
     sample and axis, started at their first annotated place): the filtered and the smoothed
     (forward–backward) posterior means, one row per sample (m)."""
-    sigma = spread / CELL
-
-    def walk(p: np.ndarray) -> np.ndarray:
-        q = gaussian_filter(p.reshape(shape), sigma, mode="constant").ravel()
-        return q / q.sum()
+    def blur(p: np.ndarray) -> np.ndarray:  # one step of the walk, forwards or backwards
+        return gaussian_filter(p.reshape(shape), spread / CELL, mode="constant").ravel()
 
     start = np.exp(-0.5 * ((cells - samples[0][1]) ** 2).sum(axis=1) / spread ** 2)
     forward, prior = [], start / start.sum()
@@ -107,7 +104,8 @@ def grid_filter(cells: np.ndarray, shape: tuple, samples: list, spread: float) -
         post = prior * like
         post = post / post.sum() if post.sum() > 0 else prior
         forward.append(post)
-        prior = walk(post)
+        prior = blur(post)
+        prior /= prior.sum()
     filtered_means = np.array([f @ cells for f in forward])
     beta = np.ones(len(cells))
     smoothed_means = np.zeros_like(filtered_means)
@@ -115,7 +113,7 @@ def grid_filter(cells: np.ndarray, shape: tuple, samples: list, spread: float) -
         post = forward[k] * beta
         smoothed_means[k] = post @ cells / post.sum()
         if k:
-            beta = gaussian_filter((beta * samples[k][2]).reshape(shape), sigma, mode="constant").ravel()
+            beta = blur(beta * samples[k][2])
             beta /= beta.max()
     return filtered_means, smoothed_means
 
@@ -133,9 +131,11 @@ def particle_filter(cells: np.ndarray, shape: tuple, samples: list, spread: floa
         ij = np.clip(np.floor((points - lo) / CELL).astype(int), 0, np.array(shape) - 1)
         return ij[:, 0] * shape[1] + ij[:, 1]
 
+    def noise_cov(dt: float) -> np.ndarray:  # of (position, velocity) on one axis over dt s
+        return q * np.array([[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]])
+
     def noise(dt: float, size: int) -> np.ndarray:
-        cov = q * np.array([[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]])
-        chol = np.linalg.cholesky(cov)
+        chol = np.linalg.cholesky(noise_cov(dt))
         return (rng.standard_normal((size, 2, 2)) @ chol.T)  # (size, axis, [p, v])
 
     state = np.zeros((n, 2, 2))  # particle, axis, (position, velocity)
@@ -161,8 +161,7 @@ def particle_filter(cells: np.ndarray, shape: tuple, samples: list, spread: floa
     draws[-1] = chosen[:, :, 0]
     for k in range(len(samples) - 2, -1, -1):
         dt = samples[k + 1][0] - samples[k][0]
-        cov = q * np.array([[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]])
-        inv = np.linalg.inv(cov)
+        inv = np.linalg.inv(noise_cov(dt))
         ahead = particles[k].copy()
         ahead[:, :, 0] += dt * ahead[:, :, 1]
         d = chosen[:, None, :, :] - ahead[None, :, :, :]  # draw, particle, axis, (p, v)

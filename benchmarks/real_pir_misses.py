@@ -35,30 +35,35 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from real_sensors import SEQUENCES, calibrated_blind, import_sequence  # noqa: E402
 
 from bintrack.bus_payloads import PositionReports, TrackSet  # noqa: E402
-from bintrack.calibration.sample_series import sample_series  # noqa: E402
-from bintrack.formats import open_dataset  # noqa: E402
+from bintrack.calibration.sample_series import SampleSeries, sample_series  # noqa: E402
+from bintrack.formats import Dataset, open_dataset  # noqa: E402
 from bintrack.pipeline import run_tracker  # noqa: E402
 from bintrack.trackers import TrackerOptions, make_tracker  # noqa: E402
 
 HIT = 1.5  # m: CLEAR MOT's hit threshold, as the authors score it
 AREA = (0.0, 0.0, 8.0, 14.0)  # m: the tracking area the authors score in
 LOST_SINCE = 5  # samples (2.5 s): a person beside someone whose own track was lost this recently
+LOST = f"  of them followed {LOST_SINCE} samples before or less"
 
 
-def classes(dataset: Path, seed: int) -> Counter:
-    """The classes of one run's person-samples (module text); 'followed' for the matched ones."""
-    data = open_dataset(dataset)
+def annotated(data: Dataset) -> dict[float, list[tuple[str, float, float]]]:
+    """Per sample time (s): the annotated people inside ``AREA``, (id, x, y) in m."""
+    people: dict[float, list] = {}
+    for row in data.truth():
+        if AREA[0] <= row.x <= AREA[2] and AREA[1] <= row.y <= AREA[3]:
+            people.setdefault(round(row.t, 3), []).append((row.target, row.x, row.y))
+    return people
+
+
+def classes(data: Dataset, series: SampleSeries, people: dict, seed: int) -> Counter:
+    """The classes of one run's person-samples (module text); 'followed' for the matched ones.
+    ``series``: the sensors' samples; ``people``: :func:`annotated`."""
     reports, tracks = {}, {}
     for out in run_tracker(data, make_tracker("mcmcda", data.deployment, TrackerOptions(seed=seed))):
         if isinstance(out, PositionReports):
             reports[round(out.t, 3)] = np.array([(r.x, r.y) for r in out.reports]).reshape(-1, 2)
         elif isinstance(out, TrackSet):
             tracks[round(out.t, 3)] = np.array([(tr.x, tr.y) for tr in out.tracks]).reshape(-1, 2)
-    series = sample_series(data.deployment, data.events())
-    people: dict[float, list] = {}
-    for row in data.truth():
-        if AREA[0] <= row.x <= AREA[2] and AREA[1] <= row.y <= AREA[3]:
-            people.setdefault(round(row.t, 3), []).append((row.target, row.x, row.y))
     out = Counter()
     last_followed: dict[str, int] = {}  # person → the sample they were last followed in
     for k_t, t in enumerate(sorted(people)):
@@ -81,7 +86,7 @@ def classes(dataset: Path, seed: int) -> Counter:
                 out["beside someone ≤ 1 m" if gap <= 1 else "beside someone 1-2 m" if gap <= 2
                     else "beside someone more than 2 m away"] += 1
                 if k_t - last_followed.get(names[i], -LOST_SINCE - 1) <= LOST_SINCE:
-                    out[f"  of them followed {LOST_SINCE} samples before or less"] += 1
+                    out[LOST] += 1
             elif len(near) and np.linalg.norm(near - person, axis=1).min() <= HIT:
                 out["a report, no track"] += 1
             else:
@@ -102,13 +107,13 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         imported = import_sequence(args.data, args.sequence, work / "imported", "--range", "0.7")  # the stated footprint
-        dataset = calibrated_blind(work, imported, args.sequence)
+        data = open_dataset(calibrated_blind(work, imported, args.sequence))
+        series, people = sample_series(data.deployment, data.events()), annotated(data)
         runs = []
         for seed in range(args.seeds):
             print(f"seed {seed} ...", file=sys.stderr, flush=True)
-            runs.append(classes(dataset, seed))
-    lost = f"  of them followed {LOST_SINCE} samples before or less"
-    names = sorted({name for run in runs for name in run if name != lost},
+            runs.append(classes(data, series, people, seed))
+    names = sorted({name for run in runs for name in run if name != LOST},
                    key=lambda n: (n != "followed", -sum(r[n] for r in runs)))
     total = sum(runs[0][name] for name in names)
     print(f"{args.sequence}: {total} annotated person-samples in the area; per run, mean (range) over seeds 0-{args.seeds - 1}")
@@ -119,7 +124,7 @@ def main() -> int:
     for name in names:
         line(name, [run[name] for run in runs])
     line("beside someone, all", [sum(n for name, n in run.items() if name.startswith("beside")) for run in runs])
-    line(lost, [run[lost] for run in runs])
+    line(LOST, [run[LOST] for run in runs])
     return 0
 
 
