@@ -111,10 +111,7 @@ class GapRepair:
             return True
         selector = f"{self.keys.state()}?source={source};after={first - 1}"
         if not self.fetch_missed(selector, upto=sent):
-            if source not in self.unanswered:
-                self.unanswered.add(source)
-                log.warning("%s: %s sent transitions that did not arrive and its state has not answered in full yet; "
-                            "its progress is held until they are fetched", self.who, source)
+            self.held(source)
             return False
         if source in self.unanswered:
             self.unanswered.discard(source)
@@ -125,6 +122,13 @@ class GapRepair:
             log.warning("%s: %s sent transitions from its count %d on that were lost and are no longer in its "
                         "memory", self.who, source, still)
         return True
+
+    def held(self, source: str) -> None:
+        """``source``'s progress waits for transitions its state has not answered for in full (logged once)."""
+        if source not in self.unanswered:
+            self.unanswered.add(source)
+            log.warning("%s: %s sent transitions that did not arrive and its state has not answered in full yet; "
+                        "its progress is held until they are fetched", self.who, source)
 
     def settle(self, source: str, final: bool = False) -> list[float] | None:
         """A region's base station: the ticks (s) of ``source``'s reports whose transitions are
@@ -137,10 +141,7 @@ class GapRepair:
         if short is not None:
             after = order.sources[source].settled
             if not self.fetch_missed(f"{self.keys.state()}?source={source};after={after}", upto=short.sent):
-                if source not in self.unanswered:
-                    self.unanswered.add(source)
-                    log.warning("%s: %s sent transitions that did not arrive and its state has not answered in full yet; "
-                                "its progress is held until they are fetched", self.who, source)
+                self.held(source)
                 return None
             self.unanswered.discard(source)
             force = True  # what the agent no longer had is lost: named below
