@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 
 from bintrack.bus_payloads import Clock, TrackSet, Transition, TruthSample
-from bintrack.deployment_model import Deployment
+from bintrack.deployment_model import Area, Deployment, FloorPlan
 from bintrack.message_codec import encode
 from bintrack.live.recording import open_recording
 from bintrack.view.map_messages import deployment_item, message_item
@@ -59,6 +59,10 @@ def test_items_are_compact_json_in_the_deployments_units():
         {"k": "sensor", "t": 2.0, "id": "n001", "v": 1}
     assert message_item(TruthSample(t=3.0, target="1", x=1.0, y=2.0))["k"] == "truth"
     json.dumps([item, scan], allow_nan=False)
+    assert "plan" not in item
+    planned = deployment.model_copy(update={"floor_plan": FloorPlan(obstacles=[Area(xmin=1, ymin=2, xmax=3, ymax=4)],
+                                                                   doors=[(0.0, 5.0)])})
+    assert deployment_item(planned)["plan"] == {"obstacles": [[[1, 2], [3, 2], [3, 4], [1, 4]]], "doors": [[0, 5]]}
 
 
 def test_the_state_keeps_tails_of_the_last_seconds_only_and_refuses_unknown_sensors():
@@ -372,7 +376,9 @@ def test_a_page_opened_mid_run_gets_the_deployment_and_the_latest_tracks_from_th
     router = zenoh.open(router_config([endpoint]))
     session = zenoh.open(client_config([endpoint]))
     deployment = Deployment.model_validate_json((DARPA3 / "deployment.json").read_text())
-    answers = {"bintrack/mid/deployment": encode(deployment.model_copy(update={"name": "mid"})),
+    plan = FloorPlan(obstacles=[Area(xmin=10, ymin=10, xmax=20, ymax=15), Area(polygon=[(30, 30), (40, 30), (35, 40)])],
+                     doors=[(0.0, 25.0)])
+    answers = {"bintrack/mid/deployment": encode(deployment.model_copy(update={"name": "mid", "floor_plan": plan})),
                "bintrack/mid/tracks": encode(TrackSet(t=12.5, tracker="mcmcda", tracks=[
                    {"track": 4, "x": 10.0, "y": 20.0, "vx": 1.0, "vy": 0.0}, {"track": 9, "x": 30.0, "y": 5.0}]))}
     queryables = [session.declare_queryable(key, lambda query, key=key: query.reply(key, answers[key]))
@@ -386,6 +392,7 @@ def test_a_page_opened_mid_run_gets_the_deployment_and_the_latest_tracks_from_th
         labels = sorted(page.evaluate("bintrack.trackLabels()"), key=lambda label: label["track"])
         assert labels == [{"track": 4, "x": 10.0, "y": 20.0, "t": 12.5}, {"track": 9, "x": 30.0, "y": 5.0, "t": 12.5}]
         assert page.evaluate("bintrack.sensorCount()") == 144
+        assert page.evaluate("bintrack.planCount()") == {"obstacles": 2, "doors": 1}  # the floor plan, drawn
         page.close()
     finally:
         assert view.stop() == 0, view.log

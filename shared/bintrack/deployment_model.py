@@ -144,30 +144,32 @@ Point = tuple[float, float]
 REGION_NAME_PATTERN = r"^[A-Za-z0-9_.-]+$"
 
 
-class RegionArea(BaseModel):
-    """One named region of a deployment served by its own base station: a rectangle
-    (``xmin``, ``ymin``, ``xmax``, ``ymax``) or a ``polygon`` ([[x, y], …], deployment units)."""
+class Area(BaseModel):
+    """An area of the floor: a rectangle (``xmin``, ``ymin``, ``xmax``, ``ymax``) or a
+    ``polygon`` ([[x, y], …]), deployment units."""
 
     model_config = ConfigDict(extra="ignore", allow_inf_nan=False, frozen=True)
-    name: str = Field(pattern=REGION_NAME_PATTERN, description="region name, a key-expression chunk")
     xmin: float | None = None
     ymin: float | None = None
     xmax: float | None = None
     ymax: float | None = None
     polygon: list[Point] | None = Field(None, description="vertices in order, deployment units")
 
+    def _label(self) -> str:
+        return "area"
+
     @model_validator(mode="after")
     def _one_shape(self):
         corners = (self.xmin, self.ymin, self.xmax, self.ymax)
         if self.polygon is not None:
             if any(c is not None for c in corners):
-                raise ValueError(f"region {self.name!r}: give a rectangle or a polygon, not both")
+                raise ValueError(f"{self._label()}: give a rectangle or a polygon, not both")
             if len(self.polygon) < 3:
-                raise ValueError(f"region {self.name!r}: a polygon needs at least 3 vertices")
+                raise ValueError(f"{self._label()}: a polygon needs at least 3 vertices")
         elif any(c is None for c in corners):
-            raise ValueError(f"region {self.name!r}: needs xmin, ymin, xmax, ymax or a polygon")
+            raise ValueError(f"{self._label()}: needs xmin, ymin, xmax, ymax or a polygon")
         elif not (self.xmin < self.xmax and self.ymin < self.ymax):
-            raise ValueError(f"region {self.name!r} needs xmin < xmax and ymin < ymax")
+            raise ValueError(f"{self._label()} needs xmin < xmax and ymin < ymax")
         return self
 
     def vertices(self) -> list[Point]:
@@ -175,6 +177,27 @@ class RegionArea(BaseModel):
         if self.polygon is not None:
             return [tuple(p) for p in self.polygon]
         return [(self.xmin, self.ymin), (self.xmax, self.ymin), (self.xmax, self.ymax), (self.xmin, self.ymax)]
+
+
+class _Named(BaseModel):
+    name: str = Field(pattern=REGION_NAME_PATTERN, description="region name, a key-expression chunk")
+
+
+class RegionArea(Area, _Named):  # _Named last, so that ``name`` is a region's first field, as it always was
+    """One named region of a deployment served by its own base station: a rectangle
+    (``xmin``, ``ymin``, ``xmax``, ``ymax``) or a ``polygon`` ([[x, y], …], deployment units)."""
+
+    def _label(self) -> str:
+        return f"region {self.name!r}"
+
+
+class FloorPlan(BaseModel):
+    """What the room's plan tells a tracker: where nobody can stand (furniture, pillars) and
+    where people come in and leave (doors), deployment units."""
+
+    model_config = ConfigDict(extra="ignore", allow_inf_nan=False, frozen=True)
+    obstacles: list[Area] = Field(default_factory=list, description="areas of the floor nobody can stand on")
+    doors: list[Point] = Field(default_factory=list, description="where people come in and leave, [x, y] each")
 
 
 class CalibrationPass(BaseModel):
@@ -208,6 +231,8 @@ class Deployment(Message):
     calibration: Calibration | None = None
     regions: list[RegionArea] | None = Field(
         None, description="named regions, each served by a base station of its own; absent = one region")
+    floor_plan: FloorPlan | None = Field(
+        None, description="obstacles nobody stands on and doors people use; absent = an open field entered anywhere")
 
     @property
     def metres_per_unit(self) -> float:
@@ -225,6 +250,10 @@ class Deployment(Message):
         names = [r.name for r in self.regions or ()]
         if len(set(names)) != len(names):
             raise ValueError(f"duplicate region name in {names}")
+        r = self.region
+        for x, y in self.floor_plan.doors if self.floor_plan else ():
+            if not (r.xmin <= x <= r.xmax and r.ymin <= y <= r.ymax):
+                raise ValueError(f"door ({x:g}, {y:g}) lies outside the region")
         return self
 
     def by_id(self) -> dict[str, DiskSensor | SectorSensor | MotionSensor | LineSensor]:

@@ -19,7 +19,7 @@ from typing import IO, NamedTuple, TextIO
 from pydantic import ValidationError
 
 from bintrack.errors import BintrackError
-from bintrack.deployment_model import Deployment, DiskSensor, LineSensor, MotionSensor, SectorSensor
+from bintrack.deployment_model import Deployment, DiskSensor, FloorPlan, LineSensor, MotionSensor, SectorSensor
 from bintrack.message_codec import location_text
 
 DEPLOYMENT_FILE = "deployment.json"
@@ -274,6 +274,29 @@ def read_deployment(path: Path | str) -> Deployment:
         except UnicodeDecodeError as exc:
             raise FormatError(path, None, "file", str(exc)) from None
     return parse_deployment(text, path)
+
+
+def read_floor_plan(path: Path | str) -> FloorPlan:
+    """Read and validate a floor plan: a JSON object with ``obstacles`` (areas: ``xmin``, ``ymin``,
+    ``xmax``, ``ymax`` or ``polygon``) and ``doors`` ([x, y] each), deployment units; raises
+    :class:`FormatError` naming the field."""
+    path = Path(path)
+    with open_input(path, "floor plan") as handle:
+        try:
+            text = handle.read()
+        except UnicodeDecodeError as exc:
+            raise FormatError(path, None, "file", str(exc)) from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FormatError(path, exc.lineno, "json", exc.msg) from None
+    if not isinstance(data, dict):
+        raise FormatError(path, 1, "(top level)", "expected a JSON object")
+    try:
+        return FloorPlan.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        raise FormatError(path, None, location_text(err["loc"]), err["msg"].removeprefix("Value error, ")) from None
 
 
 def deployment_text(deployment: Deployment) -> str:

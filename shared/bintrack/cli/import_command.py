@@ -8,9 +8,11 @@ import argparse
 import sys
 from pathlib import Path
 
+from pydantic import ValidationError
+
 from bintrack.argtypes import area_type, int_at_least, output_folder, positive_float
 from bintrack.errors import CommandError
-from bintrack.formats import write_dataset
+from bintrack.formats import read_floor_plan, write_dataset
 from bintrack.importers.binary_matrix import (METRES_PER, matrix_events, parse_columns, read_sample_matrix,
                                               read_sensor_table)
 from bintrack.importers.cvml import read_cvml
@@ -54,6 +56,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--region", type=area_type, metavar="XMIN,YMIN,XMAX,YMAX",
                         help="surveillance region, m (default: the sensors' bounding box grown by the range)")
     parser.add_argument("--name", help="deployment name (default: the name of DIR)")
+    parser.add_argument("--floor-plan", metavar="PLAN.json",
+                        help="the room's obstacles and doors, metres on the sensor table's axes (README, "
+                        "\"Real sensors\"): no target is placed inside an obstacle, people are born near the doors")
     parser.add_argument("--truth", metavar="GT.xml", help="ground truth in CVML XML: box centres are positions")
     parser.add_argument("--truth-scale", type=positive_float, default=1.0, metavar="S",
                         help="CVML units per --truth-units, e.g. 25 for 25 mm (default: %(default)s)")
@@ -67,17 +72,22 @@ def run(args: argparse.Namespace) -> int:
     sensors = read_sensor_table(args.sensors, args.sensor_units, args.columns)
     matrix = read_sample_matrix(args.matrix, args.header_lines)
     events = list(matrix_events(matrix, sensors, args.period, args.matrix))
+    plan = read_floor_plan(args.floor_plan) if args.floor_plan else None
     if args.region is not None:
         xmin, ymin, xmax, ymax = args.region
     else:
         xs, ys = [s.x for s in sensors], [s.y for s in sensors]
         xmin, ymin, xmax, ymax = min(xs) - args.range, min(ys) - args.range, max(xs) + args.range, max(ys) + args.range
-    deployment = Deployment(
-        name=args.name or Path(args.out).resolve().name, units="m",
-        region=Region(xmin=xmin, ymin=ymin, xmax=xmax, ymax=ymax),
-        sensors=[DiskSensor(id=s.id, x=round(s.x, 6), y=round(s.y, 6), range=args.range, period=args.period,
-                            pd=args.pd, pfa=args.pfa)
-                 for s in sensors])
+    try:
+        deployment = Deployment(
+            name=args.name or Path(args.out).resolve().name, units="m",
+            region=Region(xmin=xmin, ymin=ymin, xmax=xmax, ymax=ymax),
+            sensors=[DiskSensor(id=s.id, x=round(s.x, 6), y=round(s.y, 6), range=args.range, period=args.period,
+                                pd=args.pd, pfa=args.pfa)
+                     for s in sensors],
+            floor_plan=plan)
+    except ValidationError as exc:  # the floor plan's doors against the region
+        raise CommandError(f"{args.floor_plan or args.sensors}: {exc.errors()[0]['msg'].removeprefix('Value error, ')}") from None
     truth = None
     if args.truth:
         truth = read_cvml(args.truth, args.period, args.truth_scale * METRES_PER[args.truth_units], args.first_frame)

@@ -16,7 +16,7 @@ from matplotlib import colormaps
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection, PatchCollection
 from matplotlib.figure import Figure
-from matplotlib.patches import Circle, Rectangle
+from matplotlib.patches import Circle, Polygon, Rectangle
 
 from bintrack.formats import Dataset, Event, ObjectRow, TrackRow
 from bintrack.deployment_model import Deployment, DiskSensor, LineSensor, MotionSensor, SectorSensor
@@ -142,6 +142,20 @@ def _draw_sensors(ax, deployment: Deployment, detected: Collection[str]) -> None
                            label=("motion sensors" if motion else "sensors") + (", saw a target" if hit else ""))
 
 
+def _draw_floor_plan(ax, deployment: Deployment) -> None:
+    """The floor plan's obstacles (grey) and doors (brown squares), where the deployment has one."""
+    plan = deployment.floor_plan
+    if plan is None:
+        return
+    if plan.obstacles:
+        ax.add_collection(PatchCollection([Polygon(area.vertices(), closed=True) for area in plan.obstacles],
+                                          facecolor="0.88", edgecolor="0.7", linewidth=0.6, zorder=0,
+                                          label="obstacles"))
+    if plan.doors:
+        xs, ys = zip(*plan.doors)
+        ax.scatter(xs, ys, marker="s", s=40, color="#8d6e63", zorder=1, label="doors")
+
+
 def _colours(n: int) -> list:
     if n <= len(TRACK_COLOURS):
         return TRACK_COLOURS[:n]
@@ -175,6 +189,7 @@ def plot_scene(path: Path | str, deployment: Deployment, *, tracks: Sequence[Tra
     ax.set_ylabel(f"y ({deployment.units})")
     ax.add_patch(Rectangle((region.xmin, region.ymin), region.width, region.height, fill=False,
                            edgecolor="0.3", linewidth=1.0))
+    _draw_floor_plan(ax, deployment)
     _draw_sensors(ax, deployment, set(detected))
 
     track_ids = sorted({r.track for r in tracks})

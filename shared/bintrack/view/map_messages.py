@@ -47,11 +47,17 @@ def sensor_item(sensor) -> Item:
 
 
 def deployment_item(deployment: Deployment) -> Item:
-    """The deployment: name, units, region ``[xmin, ymin, xmax, ymax]`` and every sensor."""
+    """The deployment: name, units, region ``[xmin, ymin, xmax, ymax]``, every sensor and, where
+    the deployment has a floor plan, its obstacles' outlines and its doors (``plan``)."""
     region = deployment.region
-    return {"k": "deployment", "name": deployment.name, "units": deployment.units,
+    item = {"k": "deployment", "name": deployment.name, "units": deployment.units,
             "region": [region.xmin, region.ymin, region.xmax, region.ymax],
             "sensors": [sensor_item(s) for s in deployment.sensors]}
+    plan = deployment.floor_plan
+    if plan is not None:
+        item["plan"] = {"obstacles": [[list(p) for p in area.vertices()] for area in plan.obstacles],
+                        "doors": [list(p) for p in plan.doors]}
+    return item
 
 
 def message_item(message: Message) -> Item | None:

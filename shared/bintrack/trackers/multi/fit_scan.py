@@ -346,12 +346,23 @@ class FitScan:
         here = float(gain[np.flatnonzero(near == target.cell)[0]])
         soft = self.grid.soft
         if soft is None:
-            return weighted_report(self.grid.cells[near], np.exp(gain - here), self.grid.cell, weight=max(here, 0.0))
+            free = self._standing(near)
+            return weighted_report(self.grid.cells[near[free]], np.exp(gain[free] - here), self.grid.cell,
+                                   weight=max(here, 0.0))
         reach = _SOFT_REACH * float(self.grid.cell_range[target.cell])
         cells = np.asarray(self.grid.cell_tree.query_ball_point(self.grid.cells[target.cell], r=reach), dtype=int)
+        cells = cells[self._standing(cells)]
         others = self.grid.cells[[t.cell for j, t in enumerate(self.targets) if j != k]].reshape(-1, 2)
         log_l = soft.log_likelihood(self.grid.cells[cells], self.hits, others, reach)
         return weighted_report(self.grid.cells[cells], np.exp(log_l - log_l.max()), self.grid.cell, weight=max(here, 0.0))
+
+    def _standing(self, cells: np.ndarray) -> np.ndarray | slice:
+        """Which of ``cells`` a report may be placed on: those outside the floor plan's obstacles,
+        or all of them where none is free (a target wholly inside an obstacle stays reported)."""
+        free = self.grid.free
+        if free is None or not free[cells].any():
+            return slice(None)
+        return free[cells]
 
     def shared_copies(self, reports: list[PositionReport], expected) -> list[PositionReport]:
         """Copies of reports for established tracks hidden in another track's blob (module docstring, 6)."""

@@ -32,6 +32,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from bintrack.errors import TrackerConfigError
 from bintrack.bus_payloads import PositionReport, PositionReports, Transition
+from bintrack.floor_plan import FloorShape
 from bintrack.deployment_model import Deployment, DiskSensor, SectorSensor
 from bintrack.sensing import reports_presence
 from bintrack.time_span import MAX_SILENCE
@@ -69,6 +70,10 @@ class GridFusion:
     counting: SoftFootprint | None = None
     """real PIR: the Gaussian footprints that confirm a "fit" scan's targets
     (``FusionConfig.soft_count``); a class default, as ``soft``"""
+    free: np.ndarray | None = None
+    """per cell: whether someone can stand there (outside the floor plan's obstacles); None
+    without a floor plan. Targets are counted on every cell, but a report is placed on free
+    cells only (:meth:`~.fit_scan.FitScan.report`)"""
 
     def __init__(self, deployment: Deployment, config: FusionConfig = FusionConfig()):
         sensors = [s for s in deployment.sensors if isinstance(s, (DiskSensor, SectorSensor))]
@@ -154,6 +159,11 @@ class GridFusion:
         self.cover = csr_matrix((data, (renumber[np.array(rows, dtype=int)], np.array(cols, dtype=int))),
                                 shape=(keep.size, len(sensors)))
         """cells × sensors, 1 where the sensor's disk covers the cell"""
+        if deployment.floor_plan is not None:
+            try:
+                self.free = FloorShape(deployment.floor_plan).free(self.cells)
+            except ValueError as exc:
+                raise TrackerConfigError(str(exc)) from None
         self._radius = ranges
         self._positions = positions
         self._sensor_tree = tree

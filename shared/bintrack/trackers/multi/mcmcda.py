@@ -188,12 +188,17 @@ class OnlineMCMCDA(ScanWindow, ChainMoves, TrackIdentity):
         return done
 
     def _log_birth(self, rep: WindowReport) -> float:
-        """log λ_b at a new track's first report: uniform, or (``birth_edge``) lower inside the room."""
+        """log λ_b at a new track's first report: uniform, or (``birth_edge``) lower away from the
+        room's doors (its walls, where the plan names no door)."""
         c = self.config
         if c.birth_edge is None or c.birth_area is None:
             return self._log_lb
         xmin, ymin, xmax, ymax = c.birth_area
-        if min(rep.x - xmin, xmax - rep.x, rep.y - ymin, ymax - rep.y) <= c.birth_edge:
+        if c.birth_doors:
+            near = min(math.hypot(rep.x - x, rep.y - y) for x, y in c.birth_doors)
+        else:
+            near = min(rep.x - xmin, xmax - rep.x, rep.y - ymin, ymax - rep.y)
+        if near <= c.birth_edge:
             return self._log_lb
         return self._log_lb + math.log(c.birth_inside)
 

@@ -78,6 +78,9 @@ class MCMCDAConfig:
     room's doors are on its walls); None: anywhere (the paper's uniform birth)"""
     birth_area: tuple[float, float, float, float] | None = None
     """xmin, ymin, xmax, ymax (units) of the room for ``birth_edge``; None: no room"""
+    birth_doors: tuple[tuple[float, float], ...] | None = None
+    """(x, y) of the room's doors (units, the deployment's floor plan): people are born within
+    ``birth_edge`` of a door rather than of ``birth_area``'s edge; None: doors anywhere on the walls"""
     birth_inside: float = 0.1
     """λ_b farther than ``birth_edge`` from the edge, as a fraction of λ_b near it"""
     still_misses: int = 0
@@ -113,7 +116,8 @@ class MCMCDAConfig:
                        entry_depth=None if self.entry_depth is None else self.entry_depth * k,
                        birth_edge=None if self.birth_edge is None else self.birth_edge * k,
                        still_depth=self.still_depth * k, still_reach=self.still_reach * k,
-                       birth_area=None if self.birth_area is None else tuple(v * k for v in self.birth_area))
+                       birth_area=None if self.birth_area is None else tuple(v * k for v in self.birth_area),
+                       birth_doors=None if self.birth_doors is None else tuple((x * k, y * k) for x, y in self.birth_doors))
 
     def __post_init__(self):
         checks = [("window", self.window >= 2), ("n_mc", self.n_mc >= 1), ("chains", self.chains >= 1), ("max_misses", self.max_misses >= 0),

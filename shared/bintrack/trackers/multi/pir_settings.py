@@ -111,7 +111,9 @@ def pir_settings(deployment: Deployment, fusion: FusionConfig, config: MCMCDACon
     if DOOR_DEPTH is not None:
         r = deployment.region
         m = deployment.metres_per_unit
-        config = replace(config, birth_edge=DOOR_DEPTH, birth_area=(r.xmin * m, r.ymin * m, r.xmax * m, r.ymax * m))
+        doors = tuple((x * m, y * m) for x, y in deployment.floor_plan.doors) if deployment.floor_plan else ()
+        config = replace(config, birth_edge=DOOR_DEPTH, birth_area=(r.xmin * m, r.ymin * m, r.xmax * m, r.ymax * m),
+                         birth_doors=doors or None)
     fusion = replace(fusion, min_gain=PIR_MIN_GAIN, expected_split_gain=PIR_SPLIT_GAIN, threshold=PIR_THRESHOLD,
                      soft_spread=PIR_SPREAD, evidence_reference=None, multiplicity=PIR_MULTIPLICITY,
                      expected_gain=PIR_EXPECTED_GAIN, shared_support=PIR_SHARED_SUPPORT)

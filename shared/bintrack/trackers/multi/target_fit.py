@@ -93,7 +93,8 @@ class FitGrid(Protocol):
     """What the fit reads of the grid (:class:`bintrack.trackers.multi.fusion.GridFusion`):
     cells of side ``cell`` (units) at ``cells`` (n × 2), the sparse cells × sensors ``cover``, each
     cell's sensing range ``cell_range``, the per-sensor log likelihood ratios of eq. (4), and for
-    real PIR the soft footprints that place a report (``soft``) and confirm the targets (``counting``)."""
+    real PIR the soft footprints that place a report (``soft``) and confirm the targets (``counting``);
+    with a floor plan, which cells are outside its obstacles (``free``)."""
 
     config: FusionConfig
     ids: list[str]
@@ -108,6 +109,7 @@ class FitGrid(Protocol):
     shared_speed: float
     soft: SoftFootprint | None
     counting: SoftFootprint | None
+    free: np.ndarray | None
 
     def depth(self, x: float, y: float) -> float: ...
 

@@ -118,6 +118,7 @@ window.bintrack = {
   frameIntervals() { const out = []; for (let i = 1; i < frames.length; i++) out.push(frames[i] - frames[i - 1]); return out; },
   trackArrivals,
   sensorCount() { return document.querySelectorAll("path.sensor").length; },
+  planCount() { return { obstacles: document.querySelectorAll("path.obstacle").length, doors: document.querySelectorAll("path.door").length }; },
   legendEntries() { return Array.from(document.querySelectorAll(".legend [data-entry]")).map((el) => el.dataset.entry); },
   // each legend track's colour and the colours its dot and label are drawn in, as the browser computes them
   trackColours() {
@@ -178,6 +179,13 @@ function setDeployment(dep) {
   drawScale();
   L.rectangle([ll(xmin, ymin), ll(xmax, ymax)], { color: "#b0bec5", weight: 1, fill: false, dashArray: "2 4",
                                                  interactive: false }).addTo(layers.sensors);
+  const plan = dep.plan || { obstacles: [], doors: [] };   // the floor plan: where nobody stands, and the doors
+  for (const outline of plan.obstacles) {
+    L.polygon(outline.map(([x, y]) => ll(x, y)), { className: "obstacle", weight: 1, interactive: false }).addTo(layers.sensors);
+  }
+  for (const [x, y] of plan.doors) {
+    L.circleMarker(ll(x, y), { radius: 5, className: "door", interactive: false }).addTo(layers.sensors);
+  }
   for (const spec of dep.sensors) {
     const entry = { spec, value: idleValue(spec.kind), t: null, layer: null, lit: null };
     const tip = () => `${spec.id} · ${spec.kind} · value ${entry.value} · t ${fmt(entry.t, 3)} s`;
