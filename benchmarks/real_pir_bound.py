@@ -1,7 +1,7 @@
 """How well could any tracker place the people of the real ceiling-PIR recording from its
 sensors? An oracle's GOSPA beside the acceptance's 1.2 m (issue: real sensors).
 
-    .venv/bin/python benchmarks/real_pir_bound.py [--data ../shared/realdata/irtracking] [--q 0.5] [--spread 0.5]
+    .venv/bin/python benchmarks/real_pir_bound.py [--data ../shared/realdata/irtracking] [--q 0.5] [--spread 0.5] [--floor-plan PLAN.json]
 
 For each public sequence: the chain a user runs (``bintrack import``, then ``bintrack calibrate``
 of a copy without truth.csv: the sensor model from the detections alone), then an oracle that is
@@ -11,7 +11,8 @@ person is followed by their own Bayes filter on the room's 0.1 m cells:
 * the likelihood of a sample is that of the soft footprints the tracker reports with
   (p_i(d) = 1 − (1 − pfa_i)(1 − pd_i·e^(−d²/2σ_i²)), σ_i = R_i/2;
   :mod:`bintrack.trackers.multi.soft_footprint`), over every sensor's firing and silence,
-  given **the other people at their true positions**;
+  given **the other people at their true positions**; with ``--floor-plan``, a person is a
+  thousand times less likely inside one of the room's obstacles;
 * the motion is a random walk with the annotated people's own RMS step per sample and axis,
   started at the person's first annotated place, on the cells (exact); or a constant-velocity
   model (white acceleration ``--q``) with 3000 particles; the count and identities are the truth's;
@@ -42,8 +43,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from real_sensors import EVAL, SEQUENCES, bintrack, calibrated_blind, import_sequence  # noqa: E402
 
 from bintrack.calibration.sample_series import sample_series  # noqa: E402
-from bintrack.deployment_model import DiskSensor  # noqa: E402
-from bintrack.formats import TrackRow, open_dataset, write_tracks  # noqa: E402
+from bintrack.deployment_model import DiskSensor, FloorPlan  # noqa: E402
+from bintrack.floor_plan import FloorShape  # noqa: E402
+from bintrack.formats import TrackRow, open_dataset, read_floor_plan, write_tracks  # noqa: E402
 from bintrack.trackers.multi.pir_settings import PIR_PROCESS_NOISE, PIR_SPREAD  # noqa: E402
 from bintrack.trackers.multi.soft_footprint import SoftFootprint  # noqa: E402
 
@@ -52,13 +54,16 @@ TARGET = 1.2  # the acceptance's GOSPA (c = 2 m), m
 CV_NOISE = 0.5  # m²/s³: of the two tried, 0.035 (the tracker's) and 0.5, the one whose oracle does better
 PARTICLES = 3000
 DRAWS = 300
+OBSTACLE = 1e-3  # an obstacle cell's likelihood beside a free one's (--floor-plan)
 ORACLES = ("random walk, online", "random walk, smoothed", "constant velocity, online", "constant velocity, smoothed")
 
 
-def likelihoods(dataset: Path, spread: float) -> tuple[np.ndarray, dict[str, list[tuple[float, np.ndarray, np.ndarray]]], tuple]:
+def likelihoods(dataset: Path, spread: float, plan: FloorPlan | None = None) -> tuple[np.ndarray, dict[str, list[tuple[float, np.ndarray, np.ndarray]]], tuple]:
     """The room's cells (m), and per person: (t, true position, the likelihood over the cells of
     their being there given the sample's firings and silences and the others at their true
-    places, normalised) for each annotated sample; and the grid's shape. ``spread``: σ_i / R_i."""
+    places, normalised) for each annotated sample; and the grid's shape. ``spread``: σ_i / R_i.
+    With ``plan``, a cell inside an obstacle is a thousand times less likely (the annotation,
+    clicked by hand, puts a person inside one now and then)."""
     data = open_dataset(dataset)
     sensors = [s for s in data.deployment.sensors if isinstance(s, DiskSensor)]
     series = sample_series(data.deployment, data.events())
@@ -69,6 +74,7 @@ def likelihoods(dataset: Path, spread: float) -> tuple[np.ndarray, dict[str, lis
     xs, ys = np.arange(r.xmin + CELL / 2, r.xmax, CELL), np.arange(r.ymin + CELL / 2, r.ymax, CELL)
     cells = np.array([(x, y) for x in xs for y in ys])
     reach = float(np.hypot(r.xmax - r.xmin, r.ymax - r.ymin))
+    standing = np.ones(len(cells)) if plan is None else np.where(FloorShape(plan).free(cells), 1.0, OBSTACLE)
     by_time = defaultdict(list)
     for row in data.truth():
         by_time[row.t].append(row)
@@ -80,7 +86,7 @@ def likelihoods(dataset: Path, spread: float) -> tuple[np.ndarray, dict[str, lis
         truth = np.array([(row.x, row.y) for row in rows])
         for i, row in enumerate(rows):
             log_l = soft.log_likelihood(cells, series.status[k], np.delete(truth, i, axis=0), reach)
-            like = np.exp(log_l - log_l.max())
+            like = np.exp(log_l - log_l.max()) * standing
             out[row.target].append((t, truth[i], like / like.sum()))
     return cells, out, (len(xs), len(ys))
 
@@ -198,12 +204,16 @@ def main() -> int:
     parser.add_argument("--q", type=float, default=CV_NOISE,
                         help=f"the constant-velocity oracle's white acceleration, m²/s³ (default {CV_NOISE}; at the "
                         f"tracker's {PIR_PROCESS_NOISE} its particles cannot follow a person's turns and lose them)")
+    parser.add_argument("--floor-plan", type=Path, metavar="PLAN.json",
+                        help="the room's floor plan: no oracle places a person inside its obstacles (e.g. "
+                        "benchmarks/irtracking_floor_plan.json)")
     args = parser.parse_args()
+    plan = read_floor_plan(args.floor_plan) if args.floor_plan else None
     if not (args.data / "sensors.csv").exists():
         print(f"skipped: the real recording is not at {args.data}")
         return 0
     print(f"GOSPA (c = 2 m), MOTA and count error of oracles given the true count, identities, entries and the "
-          f"others' positions (footprints σ = {args.spread} R); the acceptance asks GOSPA ≤ {TARGET} m of the real tracker")
+          f"others' positions (footprints σ = {args.spread} R{', the floor plan' if plan else ''}); the acceptance asks GOSPA ≤ {TARGET} m of the real tracker")
     print(f"{'sequence':<10} {'oracle':<28} {'step m':>6} {'GOSPA m':>8} {'localisation m²':>16} {'MOTA':>7} {'MOTP':>6} {'count':>6}")
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -211,7 +221,7 @@ def main() -> int:
             imported = import_sequence(args.data, name, work / f"{name}-imported", "--range", "0.7")  # the stated footprint
             dataset = calibrated_blind(work, imported, name)
             print(f"{name}: the likelihood of every person-sample (about a minute) ...", file=sys.stderr, flush=True)
-            cells, people, shape = likelihoods(dataset, args.spread)
+            cells, people, shape = likelihoods(dataset, args.spread, plan)
             oracles, spread = oracle_tracks(cells, shape, people, args.q)
             for oracle, rows in oracles.items():
                 path = work / f"{name}-{oracle.replace(' ', '-')}.csv"

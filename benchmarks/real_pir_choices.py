@@ -17,8 +17,9 @@ Never r1-medium (the sequence reported by ``benchmarks/real_sensors.py``). The s
 
 Each simulated set is tracked with mcmcda seed 0, or seeds 0..K−1 with ``--sim-seeds K``.
 
-Each variant changes one setting of :mod:`bintrack.trackers.multi.pir_settings`, or gives the
-tracks a fixed lag (:mod:`bintrack.trackers.multi.fixed_lag`); printed per set:
+Each variant changes one setting of :mod:`bintrack.trackers.multi.pir_settings`, gives the
+tracks a fixed lag (:mod:`bintrack.trackers.multi.fixed_lag`), or gives the deployment the room's
+floor plan (``FLOOR_PLANS``); printed per set:
 mean MOTA, count error, GOSPA (c = 2 m), FP, FN, identity switches (CLEAR MOT at 1.5 m, greedy,
 area [0, 8] × [0, 14] m, as ``benchmarks/real_sensors.py``).
 """
@@ -103,8 +104,22 @@ VARIANTS = {
     "re-identified within 4 s": ({}, {"reidentify": 4.0}),
     "a person shown from their first report up to 2 m inside the field, not 1": ({}, {"entry_depth": 2.0}),
     "the same up to 3 m": ({}, {"entry_depth": 3.0}),
+    "the room's floor plan: obstacles and doors": ({}, {}),
+    "the floor plan's obstacles only": ({}, {}),
+    "the floor plan's doors only": ({}, {}),
+    "the doors only, births elsewhere 0.03 x, not 0.1": ({}, {"birth_inside": 0.03}),
+    "births 0.03 x farther than 1.5 m from the walls, not 0.1": ({}, {"birth_inside": 0.03}),
 }
 """name → (FusionConfig changes, MCMCDAConfig changes[, fixed lag in scans: ``bintrack track --lag``])"""
+FLOOR_PLANS = {"the room's floor plan: obstacles and doors": "all", "the floor plan's obstacles only": "obstacles",
+               "the floor plan's doors only": "doors",
+               "the doors only, births elsewhere 0.03 x, not 0.1": "doors"}
+"""variants tracked with the room's floor plan (``FLOOR_PLAN``; a crowd set's mirrored people walk
+a room whose obstacles are those of both the room and its mirror image, and its doors both)"""
+FLOOR_PLAN = Path(__file__).resolve().with_name("irtracking_floor_plan.json")
+"""the room's obstacles and doors, transcribed from the recording's layout drawing (its y axis
+pointing down the page; the sensor table's up)"""
+ROOM_WIDTH = 8.6  # m: the crowd sets' mirror is x → ROOM_WIDTH − x
 KEYS = ("mota", "target_count_error_mean", "gospa_mean", "false_positives", "misses", "mismatches")
 
 
@@ -136,7 +151,7 @@ def crowd_truth(fitted: Path, out: Path) -> Path:
         t, tag = float(r["t"]) + 50.0, "m"
         if t > end:
             t, tag = t - end - 0.5, "w"
-        extra.append({"t": f"{round(t * 2) / 2:g}", "target": tag + r["target"], "x": f"{8.6 - float(r['x']):.6f}", "y": r["y"]})
+        extra.append({"t": f"{round(t * 2) / 2:g}", "target": tag + r["target"], "x": f"{ROOM_WIDTH - float(r['x']):.6f}", "y": r["y"]})
     out.mkdir()
     shutil.copyfile(fitted / "deployment.json", out / "deployment.json")
     shutil.copyfile(fitted / "events.csv", out / "events.csv")
@@ -145,6 +160,20 @@ def crowd_truth(fitted: Path, out: Path) -> Path:
         w.writeheader()
         w.writerows(sorted(rows + extra, key=lambda r: (float(r["t"]), r["target"])))
     return out
+
+
+def mirrored_plan(plan: dict) -> dict:
+    """A crowd set's floor plan: the obstacles of both ``plan`` and its mirror image (x → 8.6 − x),
+    where neither the people nor their mirrored copies walk, and the doors of both."""
+    mirror = [{**a, "xmin": ROOM_WIDTH - a["xmax"], "xmax": ROOM_WIDTH - a["xmin"]} for a in plan["obstacles"]]
+    both = []
+    for a in plan["obstacles"]:
+        for b in mirror:
+            box = {"xmin": max(a["xmin"], b["xmin"]), "ymin": max(a["ymin"], b["ymin"]),
+                   "xmax": min(a["xmax"], b["xmax"]), "ymax": min(a["ymax"], b["ymax"])}
+            if box["xmin"] < box["xmax"] and box["ymin"] < box["ymax"]:
+                both.append(box)
+    return {"obstacles": both, "doors": plan["doors"] + [[ROOM_WIDTH - x, y] for x, y in plan["doors"]]}
 
 
 def soft_like(like: Path, out: Path) -> Path:
@@ -166,6 +195,7 @@ def datasets(data: Path, work: Path, seeds: int, sim_seeds: int = 1) -> list[tup
     stated = import_sequence(data, "r1-easy", work / "stated", "--range", "0.7")
     fitted = calibrate_blind(stated, stated / "events.csv", stated / "truth.csv", work / "r1-easy")
     runs = [("r1-easy", fitted, seed) for seed in range(seeds)]
+    plan = json.loads(FLOOR_PLAN.read_text())
     crowd = crowd_truth(fitted, work / "crowd-like")
     for name, like in (("sim", fitted), ("crowd", crowd)):
         for s in range(1, 5 if name == "sim" else 4):
@@ -177,10 +207,13 @@ def datasets(data: Path, work: Path, seeds: int, sim_seeds: int = 1) -> list[tup
             bintrack("simulate", "recording", "--like", str(soft), "--seed", str(s), "--out", str(raw))
             fit = calibrate_blind(stated, raw / "events.csv", raw / "truth.csv", work / f"{name}-soft{s}")
             runs.extend((f"{name}-soft".replace("sim-", ""), fit, k) for k in range(sim_seeds))
+    for name, path, _ in runs:
+        (path / "floor_plan.json").write_text(json.dumps(mirrored_plan(plan) if name.startswith("crowd") else plan))
     return runs
 
 
 def score(variant: str, dataset: Path, seed: int) -> dict:
+    from bintrack.deployment_model import FloorPlan
     from bintrack.evaluation.eval_report import evaluate
     from bintrack.formats import open_dataset, write_tracks
     from bintrack.pipeline import output_rows, run_tracker
@@ -191,9 +224,16 @@ def score(variant: str, dataset: Path, seed: int) -> dict:
     from bintrack.trackers.multi.tracker import MCMCDATracker
 
     ds = open_dataset(dataset)
-    fusion, config = pir_settings(ds.deployment, FusionConfig(), MCMCDAConfig())
+    deployment = ds.deployment
+    if variant in FLOOR_PLANS:
+        plan = FloorPlan.model_validate(json.loads((dataset / "floor_plan.json").read_text()))
+        part = FLOOR_PLANS[variant]  # "all", or the one part of the plan kept
+        if part != "all":
+            plan = plan.model_copy(update={k: [] for k in ("doors", "obstacles") if k != part})
+        deployment = deployment.model_copy(update={"floor_plan": plan})
+    fusion, config = pir_settings(deployment, FusionConfig(), MCMCDAConfig())
     f, c, *lag = VARIANTS[variant]
-    tracker = MCMCDATracker(ds.deployment, fusion=replace(fusion, **f), config=replace(config, seed=seed, **c))
+    tracker = MCMCDATracker(deployment, fusion=replace(fusion, **f), config=replace(config, seed=seed, **c))
     if lag:
         tracker = FixedLagSmoother(tracker, *lag)
     with tempfile.TemporaryDirectory() as tmp:

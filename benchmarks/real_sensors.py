@@ -2,7 +2,7 @@
 the recording of Milan, Roth, Schindler and Kudo, *Privacy Preserving Multi-target Tracking*
 (ACCV 2014 workshops): 43 PIR sensors at 2 Hz, up to six people, hand-annotated positions.
 
-    .venv/bin/python benchmarks/real_sensors.py [--data ../shared/realdata/irtracking] [--out docs] [--seeds N]
+    .venv/bin/python benchmarks/real_sensors.py [--data ../shared/realdata/irtracking] [--out docs] [--seeds N] [--floor-plan PLAN.json]
 
 For each sequence, with the command line a user would type:
 
@@ -99,6 +99,9 @@ def main() -> int:
     parser.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[1] / ".." / "shared" / "realdata" / "irtracking")
     parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "docs")
     parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--floor-plan", type=Path, metavar="PLAN.json",
+                        help="import the room's floor plan too (e.g. benchmarks/irtracking_floor_plan.json; the plots "
+                        "are then written as real_r1_medium_plan.png and real_r1_medium_lag_plan.png)")
     args = parser.parse_args()
     if not (args.data / "r1-easy.txt").exists():
         print(f"skipped: the recording is not in {args.data}")
@@ -111,10 +114,13 @@ def main() -> int:
         work = Path(tmp)
         for name in SEQUENCES:
             say(f"real_sensors: {name}: importing it and calibrating it from the detections alone")
-            stated = import_sequence(args.data, name, work / f"{name}-stated", "--range", "0.7")
+            plan = ("--floor-plan", str(args.floor_plan)) if args.floor_plan else ()
+            stated = import_sequence(args.data, name, work / f"{name}-stated", "--range", "0.7", *plan)
             guessed = import_sequence(args.data, name, work / f"{name}-guessed", "--range", "1.5", "--pd", "0.5", "--pfa", "0.03")
             fitted, agreement = calibrated(work, stated, name)
-            plots = {(): args.out / "real_r1_medium.png", LAG: args.out / "real_r1_medium_lag.png"} if name == "r1-medium" else {}
+            suffix = "_plan" if plan else ""
+            plots = {(): args.out / f"real_r1_medium{suffix}.png", LAG: args.out / f"real_r1_medium_lag{suffix}.png"} \
+                if name == "r1-medium" else {}
             runs = {(): [], LAG: []}
             for seed in range(args.seeds):
                 for options in runs:
@@ -122,7 +128,8 @@ def main() -> int:
                 say(f"  [{time.perf_counter() - started:6.0f} s] {name}: tracked and scored mcmcda seed {seed}, online and with {' '.join(LAG)}")
             rows.append((name, scores(stated), scores(guessed), runs, agreement))
     print("Real ceiling PIR (Milan et al. ACCV 2014 workshops), CLEAR MOT at 1.5 m (greedy), area [0,8]x[0,14] m, GOSPA c = 2 m")
-    print("settings chosen on r1-easy; r1-medium is the sequence reported\n")
+    print("settings chosen on r1-easy; r1-medium is the sequence reported"
+          + (f"; every run with the floor plan {args.floor_plan}" if args.floor_plan else "") + "\n")
     head = f"{'sequence':<10} {'run':<50} {'MOTA':>7} {'MOTP':>6} {'IDF1':>6} {'count err':>9} {'GOSPA':>6} {'FP':>4} {'FN':>4} {'IDSW':>4}"
     print(head)
     for name, stated, guessed, runs, _ in rows:
