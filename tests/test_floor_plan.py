@@ -45,6 +45,17 @@ def test_the_floor_plan_is_optional_and_round_trips(tmp_path):
     assert "floor_plan" not in (tmp_path / "old.json").read_text()
 
 
+def test_the_plan_crosses_the_bus_to_the_live_services():
+    """The ``deployment`` queryable's payload carries the plan, so a live base station builds the
+    same fusion as ``bintrack track``."""
+    from bintrack.message_codec import decode, encode
+
+    back = decode(Deployment, encode(_room(PLAN)))
+    assert back == _room(PLAN)
+    fusion, _ = pir_settings(back, FusionConfig(), MCMCDAConfig())
+    assert GridFusion(back, fusion).free.tolist() == GridFusion(_room(PLAN), fusion).free.tolist()
+
+
 def test_floor_shape_tells_free_points_and_the_nearest_door():
     shape = FloorShape(FloorPlan.model_validate(PLAN))
     assert shape.free(np.array([(1.0, 1.0), (2.0, 1.0), (3.0, 1.0), (4.9, 0.1), (4.6, 0.4)])).tolist() == [
