@@ -42,7 +42,8 @@ ceiling-PIR recording of Milan et al., ACCV 2014 workshops; reported on r1-mediu
 * ``evidence_reference`` None: the bars stay in fixed nats however clean the fitted sensors (the
   scaling was chosen on paper 004's outdoor grid, and not tried in the room);
 * births: λ_b ten times lower farther than 1.5 m from the walls (``MCMCDAConfig.birth_edge``):
-  people enter through the doors;
+  people enter through the doors; where the deployment's floor plan names its doors, farther than
+  1.5 m from them (``birth_doors``);
 * ``process_noise`` 0.035 m²/s³, not 0.02: people in a room turn and slow down more often than
   walkers crossing paper 004's field; lower GOSPA on all five selection sets, better MOTA on four
   (docs/real_sensors.md, "The motion model's noise");
@@ -90,7 +91,7 @@ PIR_CHAINS = 8
 """chains per scan: a room's MCMCDA is small, and twice paper 004's four chains found better
 explanations on every selection set"""
 DOOR_DEPTH = 1.5
-"""m: people are born within this distance of the room's walls (its doors)"""
+"""m: people are born within this distance of the room's walls, or of its doors where the floor plan names them"""
 
 
 def is_real_pir(deployment: Deployment) -> bool:
