@@ -186,8 +186,8 @@ def import_real(name: str, out: Path, *extra: str) -> Path:
     return out
 
 
-def calibrated_real(name: str, tmp: Path, boot: str = "0") -> Path:
-    imported = import_real(name, tmp / "imported")
+def calibrated_real(name: str, tmp: Path, boot: str = "0", *extra: str) -> Path:
+    imported = import_real(name, tmp / "imported", *extra)
     blind = tmp / "blind"
     blind.mkdir()
     for f in ("deployment.json", "events.csv"):
@@ -244,3 +244,15 @@ def test_live_equals_offline_on_the_real_recording_in_real_time(tmp_path):
     from test_live import live_and_offline
 
     live_and_offline(calibrated_real("r1-medium", tmp_path), "mcmcda", tmp_path, speed="1", exports=("tracks",))
+
+
+@needs_real
+@pytest.mark.slow
+def test_live_equals_offline_with_the_rooms_floor_plan(tmp_path):
+    """The room's floor plan reaches the live base station inside the deployment: live equals offline."""
+    from test_live import live_and_offline
+
+    plan = REPO / "benchmarks" / "irtracking_floor_plan.json"
+    fitted = calibrated_real("r1-easy", tmp_path, "0", "--floor-plan", str(plan))
+    assert read_deployment(fitted / "deployment.json").floor_plan is not None
+    live_and_offline(fitted, "mcmcda", tmp_path, speed="4", exports=("tracks",))
