@@ -116,7 +116,8 @@ def main() -> int:
             say(f"real_sensors: {name}: importing it and calibrating it from the detections alone")
             plan = ("--floor-plan", str(args.floor_plan)) if args.floor_plan else ()
             stated = import_sequence(args.data, name, work / f"{name}-stated", "--range", "0.7", *plan)
-            guessed = import_sequence(args.data, name, work / f"{name}-guessed", "--range", "1.5", "--pd", "0.5", "--pfa", "0.03")
+            guessed = import_sequence(args.data, name, work / f"{name}-guessed", "--range", "1.5", "--pd", "0.5", "--pfa", "0.03",
+                                      *plan)
             fitted, agreement = calibrated(work, stated, name)
             suffix = "_plan" if plan else ""
             plots = {(): args.out / f"real_r1_medium{suffix}.png", LAG: args.out / f"real_r1_medium_lag{suffix}.png"} \

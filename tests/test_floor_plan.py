@@ -56,12 +56,10 @@ def test_the_plan_crosses_the_bus_to_the_live_services():
     assert GridFusion(back, fusion).free.tolist() == GridFusion(_room(PLAN), fusion).free.tolist()
 
 
-def test_floor_shape_tells_free_points_and_the_nearest_door():
+def test_floor_shape_tells_free_points():
     shape = FloorShape(FloorPlan.model_validate(PLAN))
     assert shape.free(np.array([(1.0, 1.0), (2.0, 1.0), (3.0, 1.0), (4.9, 0.1), (4.6, 0.4)])).tolist() == [
         True, False, True, False, True]  # an obstacle's border is free
-    assert shape.door_distance(2.0, 1.0) == pytest.approx(3.0)
-    assert FloorShape(FloorPlan()).door_distance(0, 0) == float("inf")
     assert FloorShape(FloorPlan()).free(np.zeros((2, 2))).all()
 
 
@@ -108,6 +106,14 @@ def test_a_crossed_obstacle_is_refused():
     bowtie = {"obstacles": [{"polygon": [[0, 0], [1, 1], [1, 0], [0, 1]]}]}
     with pytest.raises(TrackerConfigError, match="obstacle 1's polygon crosses itself"):
         GridFusion(_room(bowtie), FusionConfig())
+
+
+def test_import_refuses_a_crossed_obstacle_with_one_line(tmp_path, capsys):
+    src = small_recording(tmp_path)
+    (src / "plan.json").write_text(json.dumps({"obstacles": [{"polygon": [[1, 1.5], [2, 2.5], [2, 1.5], [1, 2.5]]}]}))
+    assert run_import(src, "--columns", "1-3", "--floor-plan", str(src / "plan.json")) == 2
+    err = capsys.readouterr().err.strip()
+    assert "plan.json: obstacles: floor plan: obstacle 1's polygon crosses itself" in err and "\n" not in err
 
 
 def test_import_takes_a_floor_plan(tmp_path):

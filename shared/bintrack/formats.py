@@ -20,6 +20,7 @@ from pydantic import ValidationError
 
 from bintrack.errors import BintrackError
 from bintrack.deployment_model import Deployment, DiskSensor, FloorPlan, LineSensor, MotionSensor, SectorSensor
+from bintrack.floor_plan import FloorShape
 from bintrack.message_codec import location_text
 
 DEPLOYMENT_FILE = "deployment.json"
@@ -278,8 +279,8 @@ def read_deployment(path: Path | str) -> Deployment:
 
 def read_floor_plan(path: Path | str) -> FloorPlan:
     """Read and validate a floor plan: a JSON object with ``obstacles`` (areas: ``xmin``, ``ymin``,
-    ``xmax``, ``ymax`` or ``polygon``) and ``doors`` ([x, y] each), deployment units; raises
-    :class:`FormatError` naming the field."""
+    ``xmax``, ``ymax`` or ``polygon``, not crossing itself) and ``doors`` ([x, y] each), deployment
+    units; raises :class:`FormatError` naming the field."""
     path = Path(path)
     with open_input(path, "floor plan") as handle:
         try:
@@ -293,10 +294,15 @@ def read_floor_plan(path: Path | str) -> FloorPlan:
     if not isinstance(data, dict):
         raise FormatError(path, 1, "(top level)", "expected a JSON object")
     try:
-        return FloorPlan.model_validate(data)
+        plan = FloorPlan.model_validate(data)
     except ValidationError as exc:
         err = exc.errors()[0]
         raise FormatError(path, None, location_text(err["loc"]), err["msg"].removeprefix("Value error, ")) from None
+    try:
+        FloorShape(plan)
+    except ValueError as exc:
+        raise FormatError(path, None, "obstacles", str(exc)) from None
+    return plan
 
 
 def deployment_text(deployment: Deployment) -> str:

@@ -58,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", help="deployment name (default: the name of DIR)")
     parser.add_argument("--floor-plan", metavar="PLAN.json",
                         help="the room's obstacles and doors, metres on the sensor table's axes (README, "
-                        "\"Real sensors\"): no target is placed inside an obstacle, people are born near the doors")
+                        "\"Real sensors\"): no report is placed inside an obstacle, people are born near the doors")
     parser.add_argument("--truth", metavar="GT.xml", help="ground truth in CVML XML: box centres are positions")
     parser.add_argument("--truth-scale", type=positive_float, default=1.0, metavar="S",
                         help="CVML units per --truth-units, e.g. 25 for 25 mm (default: %(default)s)")
