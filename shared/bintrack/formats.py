@@ -20,7 +20,6 @@ from pydantic import ValidationError
 
 from bintrack.errors import BintrackError
 from bintrack.deployment_model import Deployment, DiskSensor, FloorPlan, LineSensor, MotionSensor, SectorSensor
-from bintrack.floor_plan import FloorShape
 from bintrack.message_codec import location_text
 
 DEPLOYMENT_FILE = "deployment.json"
@@ -229,16 +228,31 @@ def _sensor_lines(text: str) -> list[int]:
             return lines
 
 
-def parse_deployment(text: str, path: Path | str = DEPLOYMENT_FILE) -> Deployment:
-    """Parse deployment.json text; raises :class:`FormatError` naming line and field."""
+def _read_text(path: Path, expected: str) -> str:
+    """The text of an input file (``expected`` as :func:`open_input`); raises :class:`FormatError`."""
+    with open_input(path, expected) as handle:
+        try:
+            return handle.read()
+        except UnicodeDecodeError as exc:
+            raise FormatError(path, None, "file", str(exc)) from None
+
+
+def _json_object(text: str, path: Path | str, what: str) -> dict:
+    """``text`` parsed as a JSON object (``what`` it should be, for the message); raises :class:`FormatError`."""
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise FormatError(path, exc.lineno, "json", exc.msg) from None
     except RecursionError:
-        raise FormatError(path, None, "json", "nested too deeply to be a deployment") from None
+        raise FormatError(path, None, "json", f"nested too deeply to be {what}") from None
     if not isinstance(data, dict):
         raise FormatError(path, 1, "(top level)", "expected a JSON object")
+    return data
+
+
+def parse_deployment(text: str, path: Path | str = DEPLOYMENT_FILE) -> Deployment:
+    """Parse deployment.json text; raises :class:`FormatError` naming line and field."""
+    data = _json_object(text, path, "a deployment")
     fmt_tag = data.get("format")
     if fmt_tag is None:
         raise FormatError(path, 1, "format", "missing field (expected 'bintrack.deployment/1')")
@@ -269,12 +283,7 @@ def parse_deployment(text: str, path: Path | str = DEPLOYMENT_FILE) -> Deploymen
 def read_deployment(path: Path | str) -> Deployment:
     """Read and validate a deployment.json file."""
     path = Path(path)
-    with open_input(path, DEPLOYMENT_FILE) as handle:
-        try:
-            text = handle.read()
-        except UnicodeDecodeError as exc:
-            raise FormatError(path, None, "file", str(exc)) from None
-    return parse_deployment(text, path)
+    return parse_deployment(_read_text(path, DEPLOYMENT_FILE), path)
 
 
 def read_floor_plan(path: Path | str) -> FloorPlan:
@@ -282,22 +291,14 @@ def read_floor_plan(path: Path | str) -> FloorPlan:
     ``xmax``, ``ymax`` or ``polygon``, not crossing itself) and ``doors`` ([x, y] each), deployment
     units; raises :class:`FormatError` naming the field."""
     path = Path(path)
-    with open_input(path, "floor plan") as handle:
-        try:
-            text = handle.read()
-        except UnicodeDecodeError as exc:
-            raise FormatError(path, None, "file", str(exc)) from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise FormatError(path, exc.lineno, "json", exc.msg) from None
-    if not isinstance(data, dict):
-        raise FormatError(path, 1, "(top level)", "expected a JSON object")
+    data = _json_object(_read_text(path, "floor plan"), path, "a floor plan")
     try:
         plan = FloorPlan.model_validate(data)
     except ValidationError as exc:
         err = exc.errors()[0]
         raise FormatError(path, None, location_text(err["loc"]), err["msg"].removeprefix("Value error, ")) from None
+    from bintrack.floor_plan import FloorShape  # shapely: only where a plan is read
+
     try:
         FloorShape(plan)
     except ValueError as exc:

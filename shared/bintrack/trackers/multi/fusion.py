@@ -32,7 +32,6 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from bintrack.errors import TrackerConfigError
 from bintrack.bus_payloads import PositionReport, PositionReports, Transition
-from bintrack.floor_plan import FloorShape
 from bintrack.deployment_model import Deployment, DiskSensor, SectorSensor
 from bintrack.sensing import reports_presence
 from bintrack.time_span import MAX_SILENCE
@@ -160,6 +159,8 @@ class GridFusion:
                                 shape=(keep.size, len(sensors)))
         """cells × sensors, 1 where the sensor's disk covers the cell"""
         if deployment.floor_plan is not None:
+            from bintrack.floor_plan import FloorShape  # shapely: only for a deployment with a plan
+
             try:
                 self.free = FloorShape(deployment.floor_plan).free(self.cells)
             except ValueError as exc:
