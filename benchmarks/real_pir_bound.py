@@ -40,7 +40,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from real_sensors import EVAL, SEQUENCES, bintrack, calibrated_blind, import_sequence  # noqa: E402
+from real_sensors import EVAL, SEQUENCES, bintrack, stated_and_calibrated  # noqa: E402
 
 from bintrack.calibration.sample_series import sample_series  # noqa: E402
 from bintrack.deployment_model import DiskSensor, FloorPlan  # noqa: E402
@@ -218,8 +218,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for name in SEQUENCES:
-            imported = import_sequence(args.data, name, work / f"{name}-imported", "--range", "0.7")  # the stated footprint
-            dataset = calibrated_blind(work, imported, name)
+            dataset = stated_and_calibrated(args.data, name, work)
             print(f"{name}: the likelihood of every person-sample (about a minute) ...", file=sys.stderr, flush=True)
             cells, people, shape = likelihoods(dataset, args.spread, plan)
             oracles, spread = oracle_tracks(cells, shape, people, args.q)

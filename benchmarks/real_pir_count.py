@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from real_sensors import EVAL, bintrack, calibrated_blind, import_sequence  # noqa: E402
+from real_sensors import EVAL, bintrack, stated_and_calibrated  # noqa: E402
 
 from bintrack.calibration.sample_series import sample_series  # noqa: E402
 from bintrack.deployment_model import DiskSensor  # noqa: E402
@@ -81,8 +81,7 @@ def main() -> int:
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        imported = import_sequence(args.data, "r1-easy", work / "imported", "--range", "0.7")
-        dataset = calibrated_blind(work, imported, "r1-easy")
+        dataset = stated_and_calibrated(args.data, "r1-easy", work)
         data = open_dataset(dataset)
         series = sample_series(data.deployment, data.events())
         k = series.status.sum(axis=1)

@@ -32,7 +32,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from real_sensors import SEQUENCES, calibrated_blind, import_sequence  # noqa: E402
+from real_sensors import SEQUENCES, stated_and_calibrated  # noqa: E402
 
 from bintrack.bus_payloads import PositionReports, TrackSet  # noqa: E402
 from bintrack.calibration.sample_series import SampleSeries, sample_series  # noqa: E402
@@ -106,8 +106,7 @@ def main() -> int:
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        imported = import_sequence(args.data, args.sequence, work / "imported", "--range", "0.7")  # the stated footprint
-        data = open_dataset(calibrated_blind(work, imported, args.sequence))
+        data = open_dataset(stated_and_calibrated(args.data, args.sequence, work))
         series, people = sample_series(data.deployment, data.events()), annotated(data)
         runs = []
         for seed in range(args.seeds):

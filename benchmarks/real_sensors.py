@@ -78,6 +78,12 @@ def calibrated_blind(work: Path, imported: Path, name: str) -> Path:
     return fitted
 
 
+def stated_and_calibrated(data: Path, name: str, work: Path) -> Path:
+    """``name`` imported with the hardware's stated footprint (0.7 m) as the only prior, then
+    calibrated from its detections alone (:func:`calibrated_blind`)."""
+    return calibrated_blind(work, import_sequence(data, name, work / f"{name}-imported", "--range", "0.7"), name)
+
+
 def calibrated(work: Path, imported: Path, name: str) -> tuple[Path, dict]:
     fitted = calibrated_blind(work, imported, name)
     supervised = work / f"{name}-supervised"
