@@ -105,6 +105,11 @@ class FitScan:
         self._recount(self.targets[k].cell, None)
         del self.targets[k]
 
+    def remove_last(self) -> None:
+        """Take back the target placed last, and settle the others."""
+        self._remove(len(self.targets) - 1)
+        self.settle()
+
     def _move(self, target: _Target, cell: int) -> None:
         old, target.cell = target.cell, cell
         self._recount(old, cell)
@@ -217,9 +222,11 @@ class FitScan:
             target.cell = int(gate[np.argmax(self._gains_on(gate))])
             self._append(target)
 
-    def place_new(self) -> bool:
+    def place_new(self, threshold: int | None = None) -> bool:
+        """Place a new target at the cell of largest gain among those that newly explain
+        ``threshold`` detections (default n_d), if that gain reaches min_gain; whether one was placed."""
         new_hits = self.grid.cover @ (self.hits & (self.count[:-1] == 0)).astype(float)
-        gain = np.where(new_hits >= self.config.threshold, self.base, -np.inf)
+        gain = np.where(new_hits >= (self.config.threshold if threshold is None else threshold), self.base, -np.inf)
         best = int(np.argmax(gain))
         if not gain[best] >= self.config.min_gain:
             return False

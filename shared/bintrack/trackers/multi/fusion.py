@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
 from scipy.sparse import csr_matrix
@@ -35,6 +36,7 @@ from bintrack.bus_payloads import PositionReport, PositionReports, Transition
 from bintrack.deployment_model import Deployment, DiskSensor, SectorSensor
 from bintrack.sensing import reports_presence
 from bintrack.time_span import MAX_SILENCE
+from bintrack.trackers.multi.firing_count import FiringCount
 from bintrack.trackers.multi.fusion_config import FusionConfig
 from bintrack.trackers.multi.fit_scan import weighted_report
 from bintrack.trackers.multi.target_fit import TargetFit
@@ -69,6 +71,8 @@ class GridFusion:
     counting: SoftFootprint | None = None
     """real PIR: the Gaussian footprints that confirm a "fit" scan's targets
     (``FusionConfig.soft_count``); a class default, as ``soft``"""
+    count_check: SoftFootprint | None = None
+    """real PIR: the Gaussian footprints that judge a target the count asks for (``FusionConfig.count_soft``)"""
     free: np.ndarray | None = None
     """per cell: whether someone can stand there (outside the floor plan's obstacles); None
     without a floor plan. Targets are counted on every cell, but a report is placed on free
@@ -92,6 +96,12 @@ class GridFusion:
             raise TrackerConfigError(f"fusion soft_spread must be positive, got {config.soft_spread}")
         if config.soft_count is not None and not config.soft_count > 0:
             raise TrackerConfigError(f"fusion soft_count must be positive, got {config.soft_count}")
+        if config.count_switch is not None and not 0.0 < config.count_switch < 1.0:
+            raise TrackerConfigError(f"fusion count_switch must lie between 0 and 1, got {config.count_switch}")
+        if config.count_threshold < 1:
+            raise TrackerConfigError(f"fusion count_threshold must be at least 1, got {config.count_threshold}")
+        if config.count_soft is not None and not config.count_soft > 0:
+            raise TrackerConfigError(f"fusion count_soft must be positive, got {config.count_soft}")
         if config.threshold < 1:
             raise TrackerConfigError(f"fusion threshold n_d must be at least 1, got {config.threshold}")
         self.config = config
@@ -181,6 +191,8 @@ class GridFusion:
             self.soft = SoftFootprint(positions, ranges * config.soft_spread, pd, pfa)
         if config.soft_count is not None:
             self.counting = SoftFootprint(positions, ranges * config.soft_count, pd, pfa)
+        if config.count_soft is not None:
+            self.count_check = SoftFootprint(positions, ranges * config.count_soft, pd, pfa)
         self._fit = TargetFit(self)
 
     def __reduce__(self):
@@ -235,8 +247,10 @@ class GridFusion:
             out[cells] = np.exp(values - values.max())
         return out
 
-    def reports(self, detecting: np.ndarray, expected: list[Expectation] | tuple = ()) -> list[PositionReport]:
-        """Position reports of one scan; covariances in units².
+    def reports(self, detecting: np.ndarray, expected: list[Expectation] | tuple = (),
+                beyond: Callable[[int], int] | None = None) -> list[PositionReport]:
+        """Position reports of one scan; covariances in units². ``beyond``: see
+        :meth:`.TargetFit.reports` ("fit" only).
 
         ``clustering="fit"`` (default): targets fitted to the detections by eq. (4) over every
         sensor, using ``expected`` (the tracks' predictions, strongest first), see
@@ -251,7 +265,7 @@ class GridFusion:
             cells, log_l = self.detection_likelihood(detecting, self.config.full)
             return self._clusters(cells, log_l, limit=None)
         if self.config.clustering == "fit":
-            return self._fit.reports(detecting, expected)
+            return self._fit.reports(detecting, expected, beyond)
         active = np.ones(len(self.ids))
         reports: list[PositionReport] = []
         while True:
@@ -322,10 +336,19 @@ class ScanFusion:
     """
 
     _skipped = 0  # scans passed over before the next one (a class default: checkpoints made before it)
+    count: FiringCount | None = None
+    """the count of the people from the firings (``FusionConfig.count_switch``), else None"""
 
     def __init__(self, deployment: Deployment, config: FusionConfig = FusionConfig()):
         self.grid = GridFusion(deployment, config)
         self.period = scan_period(deployment, config)
+        if config.count_switch is not None and config.clustering == "fit":
+            grid = self.grid
+            firings = grid.cover @ grid.pd_c
+            inside = np.array([grid.depth(x, y) >= 0 for x, y in grid.cells])
+            false_alarms = sum(s.pfa or 0.0 for s in deployment.sensors if isinstance(s, (DiskSensor, SectorSensor)))
+            self.count = FiringCount(config.count_switch, float(firings[inside].mean() if inside.any() else firings.mean()),
+                                     false_alarms)
         self._detecting = np.zeros(len(self.grid.ids), dtype=bool)
         self._sensors = deployment.by_id()
         self._next: int | None = None  # index of the next scan to emit
@@ -338,8 +361,18 @@ class ScanFusion:
 
     def fuse(self, scan: Scan, expected: list[Expectation] | tuple = ()) -> PositionReports:
         """The position reports of ``scan`` (``GridFusion.reports``), given where the tracks
-        expect targets (used by the "fit" fusion)."""
-        return PositionReports(t=scan.t, reports=self.grid.reports(scan.detecting, expected))
+        expect targets (used by the "fit" fusion); with ``count_switch``, the count of the people
+        from the firings (:mod:`.firing_count`) asks for more targets."""
+        count = self.count
+        if count is None:
+            return PositionReports(t=scan.t, reports=self.grid.reports(scan.detecting, expected))
+        count.update(int(scan.detecting.sum()))
+        reports = self.grid.reports(scan.detecting, expected, count.beyond)
+        own = [(r.x, r.y) for r in reports if not r.shared]
+        if own:
+            cells = self.grid.cell_tree.query(own)[1]
+            count.placed(self.grid.cover[cells] @ self.grid.pd_c)
+        return PositionReports(t=scan.t, reports=reports)
 
     def update(self, transition: Transition) -> list[Scan]:
         """Apply ``transition`` after emitting the scans strictly before its time."""

@@ -96,6 +96,17 @@ class FusionConfig:
     under Gaussian footprints of σ = soft_count × each sensor's range reaches ``min_gain`` (a
     new target) or ``expected_gain`` (a track's) (:meth:`.SoftFootprint.gains`); None: the
     disks alone count the targets"""
+    count_switch: float | None = None
+    """real PIR: a count of the people from how many sensors fire, filtered over the scans
+    (:mod:`.firing_count`; someone comes or goes with this probability per scan). While it holds
+    more people than the fit's targets and shared copies, that many more targets are sought
+    (``count_threshold``, ``count_soft``). None: no count"""
+    count_threshold: int = 1
+    """n_d for a target the count asks for"""
+    count_soft: float | None = None
+    """a target the count asks for is kept only if its evidence given the others, under Gaussian
+    footprints of σ = count_soft × each sensor's range (:meth:`.SoftFootprint.gains`), reaches
+    ``min_gain``: a walker's far firings need no second person; None: no such check"""
     explained: float = 1.0
     """"explain": a report explains the detections of sensors within this multiple of their
     sensing range of it"""

@@ -51,10 +51,11 @@ class SoftFootprint:
         y = detecting[sensors] > 0
         return np.where(y[None, :], np.log1p(-silent), np.log(silent)).sum(axis=1)
 
-    def gains(self, targets: np.ndarray, detecting: np.ndarray) -> np.ndarray:
+    def gains(self, targets: np.ndarray, detecting: np.ndarray, fixed: np.ndarray | None = None) -> np.ndarray:
         """Per target of ``targets`` (m × 2, units): log P(the scan | all the targets) − log P(the
         scan | all but that one), nats, over the sensors within 3σ of it (farther, it changes
-        nothing): the evidence for each target given the others; ``detecting`` per sensor."""
+        nothing): the evidence for each target given the others and those at ``fixed`` (k × 2,
+        units, whose own evidence is not asked); ``detecting`` per sensor."""
         out = np.zeros(len(targets))
         y_all = detecting > 0
         for k, point in enumerate(targets):
@@ -62,7 +63,10 @@ class SoftFootprint:
             if sensors.size == 0:
                 continue
             own = self.miss(sensors, targets[k:k + 1])[0]
-            without = (1.0 - self.pfa[sensors]) * self.miss(sensors, np.delete(targets, k, axis=0)).prod(axis=0)
+            others = np.delete(targets, k, axis=0)
+            if fixed is not None:
+                others = np.concatenate([others, fixed])
+            without = (1.0 - self.pfa[sensors]) * self.miss(sensors, others).prod(axis=0)
             silent_without = np.clip(without, 1e-12, 1 - 1e-12)
             silent_with = np.clip(without * own, 1e-12, 1 - 1e-12)
             y = y_all[sensors]

@@ -63,6 +63,13 @@ than one does, and a second target there gains from that, or loses on their miss
    binary sensors cannot resolve it. The copy keeps the hidden person's track, and its count,
    alive. The copy has a loose covariance (the gap plus (R/2)² per axis), so it does not pull
    the track onto the other person. A new track cannot begin with a copy (``mcmcda``).
+7. **The count's people** (real PIR, ``count_switch``; off by default). A count of the people
+   from how many sensors fire (:mod:`.firing_count`) may hold more people than steps 1–6
+   reported (targets and copies). Then as many more targets are sought, greedily as in step 2
+   but from ``count_threshold`` detections (1: a person only one sensor saw). Each is kept only if
+   Gaussian footprints (σ = ``count_soft`` × range, :meth:`.SoftFootprint.gains`) find it
+   ``min_gain`` of evidence given the others: a real walker fires sensors beyond the disk, and
+   those firings need no second person.
 
 The likelihood is eq. (4) itself, and each sensor's term stays local. Everything runs on the
 grid of ``GridFusion``.
@@ -71,7 +78,7 @@ grid of ``GridFusion``.
 from __future__ import annotations
 
 import math
-from typing import Protocol
+from typing import Callable, Protocol
 
 import numpy as np
 from scipy.sparse import csr_matrix
@@ -109,6 +116,7 @@ class FitGrid(Protocol):
     shared_speed: float
     soft: SoftFootprint | None
     counting: SoftFootprint | None
+    count_check: SoftFootprint | None
     free: np.ndarray | None
 
     def depth(self, x: float, y: float) -> float: ...
@@ -210,10 +218,13 @@ class TargetFit:
             covered[self._cells_of[s]] = True
         return np.flatnonzero(covered)
 
-    def reports(self, detecting: np.ndarray, expected: list[Expectation] | tuple = ()) -> list[PositionReport]:
+    def reports(self, detecting: np.ndarray, expected: list[Expectation] | tuple = (),
+                beyond: Callable[[int], int] | None = None) -> list[PositionReport]:
         """The position reports of one scan: ``detecting`` is every sensor's status in
         ``grid.ids`` order; ``expected`` the tracks' expectations, strongest first. Covariances
-        are in units²; ``weight`` is the target's gain in nats."""
+        are in units²; ``weight`` is the target's gain in nats. ``beyond``, given how many reports
+        the fit made (targets and shared copies), says how many more people the scan holds
+        (:meth:`.FiringCount.beyond`); so many more targets are sought (step 7)."""
         scan = FitScan(self, detecting)
         for e, expectation in enumerate(expected):
             scan.place_expected(e, expectation)
@@ -230,7 +241,33 @@ class TargetFit:
                     break
             scan.settle()
         scan.prune()
+        reports = self._reported(scan, expected)
+        if beyond is not None and self._seek(scan, beyond(len(reports))):
+            reports = self._reported(scan, expected)
+        return reports
+
+    def _reported(self, scan: FitScan, expected) -> list[PositionReport]:
         reports = [scan.report(k) for k in range(len(scan.targets))]
         if self.config.shared:
             reports += scan.shared_copies(reports, expected)
         return reports
+
+    def _seek(self, scan: FitScan, more: int) -> bool:
+        """Up to ``more`` new targets beyond those fitted (step 7 of the module docstring), each
+        from ``count_threshold`` detections and kept only if the soft footprints (``count_soft``)
+        find it at least min_gain nats of evidence given the others; whether any was kept."""
+        before = len(scan.targets)
+        check = self.grid.count_check
+        for _ in range(more):
+            if not scan.place_new(self.config.count_threshold):
+                break
+            scan.settle()
+            if check is not None:
+                points = self.grid.cells[[t.cell for t in scan.targets]]
+                if check.gains(points[-1:], scan.hits, fixed=points[:-1])[0] < self.config.min_gain:
+                    scan.remove_last()
+                    break
+        if len(scan.targets) == before:
+            return False
+        scan.prune()
+        return True
