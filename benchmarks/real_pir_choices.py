@@ -109,6 +109,12 @@ VARIANTS = {
     "the floor plan's doors only": ({}, {}),
     "the doors only, births elsewhere 0.03 x, not 0.1": ({}, {"birth_inside": 0.03}),
     "births 0.03 x farther than 1.5 m from the walls, not 0.1": ({}, {"birth_inside": 0.03}),
+    "no count from the firings (before)": ({"count_switch": None}, {}),
+    "the count's people from one detection, unchecked": ({"count_soft": None}, {}),
+    "the count's people checked with soft footprints of 0.8 R, not 0.9": ({"count_soft": 0.8}, {}),
+    "the same with R": ({"count_soft": 1.0}, {}),
+    "the same with 1.1 R": ({"count_soft": 1.1}, {}),
+    "the same with 1.25 R": ({"count_soft": 1.25}, {}),
 }
 """name → (FusionConfig changes, MCMCDAConfig changes[, fixed lag in scans: ``bintrack track --lag``])"""
 FLOOR_PLANS = {"the room's floor plan: obstacles and doors": "all", "the floor plan's obstacles only": "obstacles",
