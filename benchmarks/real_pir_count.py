@@ -20,9 +20,11 @@ false alarms b are known:
 
 The count error is very sensitive to a: 10 % off doubles it.
 
-Printed beside the tracker's count error (``bintrack eval``'s ``target_count_error_mean``, mcmcda
-seed 0). Never r1-medium. About half a minute. What a tracker made of it, tried and not kept:
-docs/real_sensors.md, "The count from how many sensors fire".
+The filter is the tracker's own (:class:`bintrack.trackers.multi.firing_count.FiringCount`, which
+the fusion of real PIR runs with a learned from the people it places). Printed beside the
+tracker's count error (``bintrack eval``'s ``target_count_error_mean``, mcmcda seed 0). Never
+r1-medium. About half a minute. What the tracker makes of it: docs/real_sensors.md, "The count
+from how many sensors fire" and "The count's people sought by the fit".
 """
 
 from __future__ import annotations
@@ -42,26 +44,19 @@ from real_sensors import EVAL, bintrack, stated_and_calibrated  # noqa: E402
 from bintrack.calibration.sample_series import sample_series  # noqa: E402
 from bintrack.deployment_model import DiskSensor  # noqa: E402
 from bintrack.formats import open_dataset, read_tracks  # noqa: E402
+from bintrack.trackers.multi.firing_count import FiringCount  # noqa: E402
 
 AREA = (0.0, 0.0, 8.0, 14.0)  # m: where people are counted, as the scores count them
-MAX_PEOPLE = 12
 
 
 def count_filter(k: np.ndarray, a: float, b: float, switch: float) -> tuple[np.ndarray, float]:
-    """The most likely count per sample of the HMM above, filtered online (forward only), and the
-    log likelihood of ``k`` under it (nats)."""
-    n = np.arange(MAX_PEOPLE + 1)
-    move = np.diag(np.full(len(n), 1.0 - switch)) + np.diag(np.full(len(n) - 1, switch / 2), 1) \
-        + np.diag(np.full(len(n) - 1, switch / 2), -1)
-    move /= move.sum(axis=1, keepdims=True)
-    belief, out, log_l = np.full(len(n), 1.0 / len(n)), [], 0.0
+    """The most likely count per sample of the HMM above with a fixed slope ``a`` (the tracker's
+    :class:`FiringCount` with no people placed), filtered online (forward only), and the log
+    likelihood of ``k`` under it (nats)."""
+    count, out, log_l = FiringCount(switch, floor=a, false_alarms=b), [], 0.0
     for fired in k:
-        belief = belief @ move
-        mean, var = a * n + b, np.maximum(b + a * n, 0.25)
-        belief = belief * np.exp(-0.5 * (fired - mean) ** 2 / var) / np.sqrt(2 * np.pi * var)
-        log_l += float(np.log(belief.sum()))
-        belief /= belief.sum()
-        out.append(int(np.argmax(belief)))
+        log_l += count.update(int(fired))
+        out.append(int(np.argmax(count.belief)))
     return np.array(out), log_l
 
 

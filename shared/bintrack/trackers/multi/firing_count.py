@@ -46,14 +46,17 @@ class FiringCount:
         """Firing sensors per person: the running mean of their expected firings at the placed people."""
         return self._sum / self._weight
 
-    def update(self, fired: int) -> None:
-        """One scan in which ``fired`` sensors fire."""
+    def update(self, fired: int) -> float:
+        """One scan in which ``fired`` sensors fire; returns log p(fired | the scans before), nats."""
         belief = self.belief @ self._move
         mean = self.a * self._counts + self.b
         var = np.maximum(mean, _LEAST_VARIANCE)
-        log_l = -0.5 * (fired - mean) ** 2 / var - 0.5 * np.log(var)
-        belief = belief * np.exp(log_l - log_l.max())
-        self.belief = belief / belief.sum()
+        log_l = -0.5 * (fired - mean) ** 2 / var - 0.5 * np.log(2 * np.pi * var)
+        top = float(log_l.max())
+        belief = belief * np.exp(log_l - top)
+        total = float(belief.sum())
+        self.belief = belief / total
+        return top + float(np.log(total))
 
     def beyond(self, placed: int) -> int:
         """How many people more than ``placed`` the count holds at least as likely as not: the
