@@ -115,6 +115,8 @@ VARIANTS = {
     "the same with R": ({"count_soft": 1.0}, {}),
     "the same with 1.1 R": ({"count_soft": 1.1}, {}),
     "the same with 1.25 R": ({"count_soft": 1.25}, {}),
+    "someone comes or goes 0.005 per scan, not 0.02": ({"count_switch": 0.005}, {}),
+    "someone comes or goes 0.05 per scan": ({"count_switch": 0.05}, {}),
 }
 """name → (FusionConfig changes, MCMCDAConfig changes[, fixed lag in scans: ``bintrack track --lag``])"""
 FLOOR_PLANS = {"the room's floor plan: obstacles and doors": "all", "the floor plan's obstacles only": "obstacles",
