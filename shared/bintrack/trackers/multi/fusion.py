@@ -73,6 +73,11 @@ class GridFusion:
     (``FusionConfig.soft_count``); a class default, as ``soft``"""
     count_check: SoftFootprint | None = None
     """real PIR: the Gaussian footprints that judge a target the count asks for (``FusionConfig.count_soft``)"""
+    firings: np.ndarray | None = None
+    """real PIR (``FusionConfig.count_switch``): per cell, the firing sensors a person there is
+    expected to give, Σ pd over the disks covering it (:mod:`.firing_count`'s a)"""
+    false_alarms = 0.0
+    """real PIR (``count_switch``): Σ pfa, the firings per scan of an empty room (the count's b)"""
     free: np.ndarray | None = None
     """per cell: whether someone can stand there (outside the floor plan's obstacles); None
     without a floor plan. Targets are counted on every cell, but a report is placed on free
@@ -193,6 +198,9 @@ class GridFusion:
             self.counting = SoftFootprint(positions, ranges * config.soft_count, pd, pfa)
         if config.count_soft is not None:
             self.count_check = SoftFootprint(positions, ranges * config.count_soft, pd, pfa)
+        if config.count_switch is not None:
+            self.firings = self.cover @ pd_c
+            self.false_alarms = float(pfa.sum())
         self._fit = TargetFit(self)
 
     def __reduce__(self):
@@ -344,11 +352,9 @@ class ScanFusion:
         self.period = scan_period(deployment, config)
         if config.count_switch is not None and config.clustering == "fit":
             grid = self.grid
-            firings = grid.cover @ grid.pd_c
             inside = np.array([grid.depth(x, y) >= 0 for x, y in grid.cells])
-            false_alarms = sum(s.pfa or 0.0 for s in deployment.sensors if isinstance(s, (DiskSensor, SectorSensor)))
-            self.count = FiringCount(config.count_switch, float(firings[inside].mean() if inside.any() else firings.mean()),
-                                     false_alarms)
+            floor = grid.firings[inside] if inside.any() else grid.firings
+            self.count = FiringCount(config.count_switch, float(floor.mean()), grid.false_alarms)
         self._detecting = np.zeros(len(self.grid.ids), dtype=bool)
         self._sensors = deployment.by_id()
         self._next: int | None = None  # index of the next scan to emit
@@ -370,8 +376,7 @@ class ScanFusion:
         reports = self.grid.reports(scan.detecting, expected, count.beyond)
         own = [(r.x, r.y) for r in reports if not r.shared]
         if own:
-            cells = self.grid.cell_tree.query(own)[1]
-            count.placed(self.grid.cover[cells] @ self.grid.pd_c)
+            count.placed(self.grid.firings[self.grid.cell_tree.query(own)[1]])
         return PositionReports(t=scan.t, reports=reports)
 
     def update(self, transition: Transition) -> list[Scan]:
