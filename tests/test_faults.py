@@ -16,6 +16,7 @@ import subprocess
 import tempfile
 import sys
 import threading
+import time
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -142,9 +143,18 @@ class Up:
         self.wait_for(reached, f"event time {t} s")
 
     def service_pid(self, name: str) -> int:
-        pids = [pid for pid, cmd in children(self.proc.pid).items() if f"--id up{self.proc.pid}-{name} " in cmd + " "]
-        assert len(pids) == 1, (name, children(self.proc.pid))
-        return pids[0]
+        """The pid of this run's service ``name``. There is no event for a process appearing in
+        /proc, so it is looked up until it is there (once, in CI, the first look after "router
+        on" missed a service that the second found), for at most HUNG s."""
+        deadline = time.monotonic() + HUNG
+        while True:
+            found = children(self.proc.pid)
+            pids = [pid for pid, cmd in found.items() if f"--id up{self.proc.pid}-{name} " in cmd + " "]
+            if len(pids) == 1:
+                return pids[0]
+            if time.monotonic() > deadline or self.proc.poll() is not None:
+                raise AssertionError(f"no single process of {name} among {found}:\n{self.log[-4000:]}")
+            time.sleep(0.02)
 
     def finish(self) -> int:
         """up's exit status; a run that has not ended within HUNG s is stopped (SIGTERM, as
