@@ -78,7 +78,7 @@ VARIANTS = {
     "a track shown 3 scans past its last report, not 2": ({}, {"coast": 3}),
     "soft footprints of 0.4 R for the reports, not R/2": ({"soft_spread": 0.4}, {}),
     "soft footprints of 0.6 R": ({"soft_spread": 0.6}, {}),
-    **{f"fixed lag {n} scans ({n / 2:g} s)": ({}, {}, n) for n in (2, 4, 6, 8, 10)},
+    **{f"fixed lag {n} scans ({n / 2:g} s)": ({}, {}, n) for n in (2, 4, 6, 8, 10, 12, 20)},
     "lag 6, births anywhere (not 10 x fewer inside)": ({}, {"birth_inside": 1.0}, 6),
     "lag 6, births inside 0.3 x": ({}, {"birth_inside": 0.3}, 6),
     "lag 6, coast 1": ({}, {"coast": 1}, 6),

@@ -105,6 +105,16 @@ def test_a_gap_the_lag_closes_is_filled_and_a_longer_one_is_not():
     assert [shown(m) for m in given(smoother, out)] == [{1: 0.0}, {1: 2.0}, {1: 3.0}, {}]
 
 
+def test_a_long_lag_averages_over_at_most_three_scans_each_side():
+    # a person who walks out and back: x = 0, 1, …, 7, 6, …, 0; the turn at scan 7
+    xs = [float(min(n, 14 - n)) for n in range(15)]
+    for lag in (6, 20):
+        smoother, out = run([{1: x} for x in xs], lag=lag)
+        assert shown(given(smoother, out)[7]) == {1: round(sum(xs[4:11]) / 7, 9)}  # ±3 scans, not ±10
+    smoother, out = run([{1: x} for x in xs], lag=2)
+    assert shown(given(smoother, out)[7]) == {1: round(sum(xs[6:9]) / 3, 9)}  # half the lag, ±1
+
+
 def test_the_trackers_later_association_of_a_scan_is_what_is_shown():
     # online, identity 5's first two reports were false alarms and identity 3 a track of one
     # report; two scans later the sampler gave those reports to 5 and dropped 3

@@ -16,7 +16,10 @@ once ``lag`` later scans are known:
   position linear in time between the two;
 * every position is the mean over the scans within ``half_width`` of the scan (those that show
   the identity, gaps filled), a moving average centred on it, and the velocity the
-  least-squares slope of those positions against time.
+  least-squares slope of those positions against time. ``half_width`` is half the lag, at most
+  ``MAX_HALF_WIDTH`` scans: the association is settled by about 6 scans, and a wider average
+  only blurs a person who turns (r1-easy, seeds 0 and 1: ``--lag 20`` averaged over ±10 scans
+  scored MOTA 61–63 %, over ±3 scans 82–83 %, as ``--lag 6``).
 
 The identities are the tracker's; no track is shown that the sampler did not hold reports for
 within ``lag`` scans on both sides. Chosen on the selection sets of the real-PIR recording
@@ -32,6 +35,8 @@ from bintrack.bus_payloads import Track, TrackSet
 from bintrack.errors import TrackerConfigError
 from bintrack.trackers.base import TrackerInput, TrackerOutput
 
+MAX_HALF_WIDTH = 3
+"""scans: the moving average reaches at most this far on each side of a scan, however long the lag"""
 Association = dict[int, tuple[float, float]]
 """identity → (x, y) of the report the MAP's track of that identity holds in a scan, units"""
 
@@ -47,7 +52,7 @@ class FixedLagSmoother:
         self.inner = tracker
         tracker.keep_revisions()
         self.lag = lag
-        self.half_width = math.ceil(lag / 2)
+        self.half_width = min(math.ceil(lag / 2), MAX_HALF_WIDTH)
         # (t, tracker name, the latest association of the scan's reports) of the scans still
         # needed: the ones not given yet, and before them those a gap or an average reaches back to
         self._scans: deque[tuple[float, str, Association]] = deque()
