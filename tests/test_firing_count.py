@@ -54,6 +54,36 @@ def test_beyond_is_how_many_more_people_are_at_least_as_likely_as_not():
     assert count.beyond(5) == 0 and count.beyond(30) == 0
 
 
+def test_the_count_holds_more_people_than_its_prior_reaches():
+    # a hall of 45 people at 1.5 firings each: a filter that holds 100 follows them, one that
+    # holds only its prior's 30 cannot
+    firings = _firings([45] * 150, 1.5, 0.2, 0)
+    wide, narrow = FiringCount(0.02, floor=1.5, false_alarms=0.2, most=100), FiringCount(0.02, floor=1.5, false_alarms=0.2)
+    for k in firings:
+        wide.update(int(k))
+        narrow.update(int(k))
+    assert abs(int(np.argmax(wide.belief)) - 45) <= 3 and wide.beyond(40) >= 2
+    assert int(np.argmax(narrow.belief)) == 30 and narrow.beyond(30) == 0
+    # the fusion holds twice the deployment's sensors
+    room = _line(20)
+    assert len(ScanFusion(room, _pir(room)).count.belief) == 41
+
+
+def test_a_count_checkpointed_with_its_move_matrix_goes_on():
+    """A filter pickled before it held more than 30 people kept its move as a 31 × 31 matrix
+    and no switch; it goes on as a new one would."""
+    new = FiringCount(0.02, floor=1.5, false_alarms=0.2)
+    s, n = 0.02, 31
+    move = np.diag(np.full(n, 1.0 - s)) + np.diag(np.full(n - 1, s / 2), 1) + np.diag(np.full(n - 1, s / 2), -1)
+    state = {k: v for k, v in new.__dict__.items() if k != "switch"}
+    state["_move"] = move / move.sum(axis=1, keepdims=True)
+    old = FiringCount.__new__(FiringCount)
+    old.__setstate__(state)
+    for k in _firings([2] * 30 + [5] * 30, 1.5, 0.2, 3):
+        assert old.update(int(k)) == pytest.approx(new.update(int(k)))
+    assert old.belief == pytest.approx(new.belief) and old.beyond(0) == new.beyond(0)
+
+
 def test_placed_people_set_the_firings_per_person():
     count = FiringCount(0.02, floor=1.0, false_alarms=0.0)
     assert count.a == pytest.approx(1.0)

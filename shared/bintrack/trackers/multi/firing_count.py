@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 
-MAX_PEOPLE = 30
-"""the largest count the filter holds"""
+PRIOR_MOST = 30
+"""before the first scan, every count from 0 to this is as likely (the filter holds larger ones
+too, up to its ``most``)"""
 PRIOR_WEIGHT = 20.0
 """the floor's average of a counts as this many placed people"""
 _LEAST_VARIANCE = 0.25  # firings², so that an empty room's k = 0 is not infinitely sure
@@ -27,19 +28,35 @@ _LEAST_VARIANCE = 0.25  # firings², so that an empty room's k = 0 is not infini
 class FiringCount:
     """The count filter (module docstring): ``switch`` per scan; ``floor`` the firing sensors of
     one person averaged over the floor inside the sensors' hull, a's value until people are
-    placed; ``false_alarms`` b = Σ pfa."""
+    placed; ``false_alarms`` b = Σ pfa; ``most`` the largest count it holds (at least
+    ``PRIOR_MOST``; the fusion gives it twice the deployment's sensors)."""
 
-    def __init__(self, switch: float, floor: float, false_alarms: float):
-        n = MAX_PEOPLE + 1
-        move = np.diag(np.full(n, 1.0 - switch)) + np.diag(np.full(n - 1, switch / 2), 1) \
-            + np.diag(np.full(n - 1, switch / 2), -1)
-        self._move = move / move.sum(axis=1, keepdims=True)
-        self._counts = np.arange(n)
+    def __init__(self, switch: float, floor: float, false_alarms: float, most: int = PRIOR_MOST):
+        self.switch = switch
+        self._counts = np.arange(max(most, PRIOR_MOST) + 1)
         self.b = false_alarms
         self._sum = PRIOR_WEIGHT * floor
         self._weight = PRIOR_WEIGHT
-        self.belief = np.full(n, 1.0 / n)
+        self.belief = np.where(self._counts <= PRIOR_MOST, 1.0 / (PRIOR_MOST + 1), 0.0)
         """P(n) after the last scan"""
+
+    def __setstate__(self, state: dict) -> None:
+        """From a checkpoint; one made before the filter held more than 30 people kept its move
+        as a matrix, whose entry (1, 0) is switch / 2."""
+        move = state.pop("_move", None)
+        if move is not None:
+            state["switch"] = 2.0 * float(move[1, 0])
+        self.__dict__.update(state)
+
+    def _moved(self) -> np.ndarray:
+        """The belief one scan on: someone comes or goes with probability ``switch``, half each
+        way; the count 0 cannot fall nor the largest rise, so there it stays with 1 − switch/2."""
+        s = self.switch
+        held = self.belief / np.concatenate(([1.0 - s / 2], np.ones(len(self.belief) - 2), [1.0 - s / 2]))
+        out = (1.0 - s) * held
+        out[1:] += s / 2 * held[:-1]
+        out[:-1] += s / 2 * held[1:]
+        return out
 
     @property
     def a(self) -> float:
@@ -48,7 +65,7 @@ class FiringCount:
 
     def update(self, fired: int) -> float:
         """One scan in which ``fired`` sensors fire; returns log p(fired | the scans before), nats."""
-        belief = self.belief @ self._move
+        belief = self._moved()
         mean = self.a * self._counts + self.b
         var = np.maximum(mean, _LEAST_VARIANCE)
         log_l = -0.5 * (fired - mean) ** 2 / var - 0.5 * np.log(2 * np.pi * var)

@@ -354,7 +354,9 @@ class ScanFusion:
             grid = self.grid
             inside = np.array([grid.depth(x, y) >= 0 for x, y in grid.cells])
             floor = grid.firings[inside] if inside.any() else grid.firings
-            self.count = FiringCount(config.count_switch, float(floor.mean()), grid.false_alarms)
+            # k ≤ the sensors, so with a ≥ ½ firing per person no larger count is told apart
+            self.count = FiringCount(config.count_switch, float(floor.mean()), grid.false_alarms,
+                                     most=2 * len(grid.ids))
         self._detecting = np.zeros(len(self.grid.ids), dtype=bool)
         self._sensors = deployment.by_id()
         self._next: int | None = None  # index of the next scan to emit
