@@ -83,6 +83,20 @@ def test_import_rejects_a_table_without_units(tmp_path, capsys):
     assert "no unit" in capsys.readouterr().err
 
 
+def test_a_recording_too_short_for_intervals_is_calibrated_with_a_warning(tmp_path, capsys):
+    """Three samples: the fit runs (it used to fail inside numpy), says it has no intervals
+    rather than printing ones of width 0, and writes the fitted deployment."""
+    src = small_recording(tmp_path)
+    assert run_import(src) == 0
+    capsys.readouterr()
+    assert cli.main(["calibrate", str(src / "ds"), "--out", str(src / "fit")]) == 0
+    out, err = capsys.readouterr()
+    assert "only 3 samples: too few for intervals" in err and "Traceback" not in err
+    pooled_radius = out.splitlines()[2].split("m)")[1].split()
+    assert not pooled_radius[1].startswith("[")  # its value, then the sensors' median: no interval between
+    assert all(s.pd is not None for s in open_dataset(src / "fit").deployment.sensors)
+
+
 def test_old_deployments_load_and_new_fields_are_optional():
     old = read_deployment(REPO / "datasets" / "darpa-grid-1" / "deployment.json")
     assert all(s.hold is None and s.still is None for s in old.sensors if isinstance(s, DiskSensor))

@@ -28,7 +28,8 @@ Unsupervised estimates (sampling period P):
   weighted least squares to the pairs within ``PAIR_RANGES`` stated ranges, pooled, then r per
   sensor over the pairs it is in (shrunk towards the pooled r).
 
-Intervals: a moving-block bootstrap over time (blocks of ``BLOCK`` samples), 2.5 % and 97.5 %.
+Intervals: a moving-block bootstrap over time (blocks of ``BLOCK`` samples), 2.5 % and 97.5 %;
+none for a recording shorter than two blocks.
 """
 
 from __future__ import annotations
@@ -150,7 +151,9 @@ def _point_fit(status: np.ndarray, positions: np.ndarray, stated: float, period:
     distance = cdist(positions, positions)
     near = (distance < QUIET_RANGES * stated) & ~np.eye(n, dtype=bool)
     window = np.ones(2 * QUIET_SAMPLES + 1)
-    busy = np.array([np.convolve(status[:, j], window, mode="same") > 0 for j in range(n)]).T  # k × j
+    # "full" cut to the samples, not "same": that one is as long as the window when the series is shorter
+    busy = np.array([np.convolve(status[:, j], window)[QUIET_SAMPLES:QUIET_SAMPLES + len(status)] > 0
+                     for j in range(n)]).T  # k × j
     quiet_on, quiet_n = np.zeros(n), np.zeros(n)
     for i in range(n):
         quiet = ~busy[:, near[i]].any(axis=1)
@@ -201,7 +204,8 @@ def calibrate(series: SampleSeries, stated_range: float, *, boot: int = 200, see
     k = len(status)
     block = min(BLOCK, k)
     draws = []
-    for _ in range(boot):
+    # fewer than two blocks: every resample would be the recording itself, an interval of width 0
+    for _ in range(boot if k >= 2 * BLOCK else 0):
         starts = rng.integers(0, k - block + 1, size=math.ceil(k / block))
         sample = np.concatenate([status[s:s + block] for s in starts])[:k]
         draws.append(np.array(_point_fit(sample, positions, stated_range, period)))
