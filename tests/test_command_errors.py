@@ -8,12 +8,14 @@ uncaught exception fails the test) and checks stderr holds exactly one line.
 
 from __future__ import annotations
 
+import argparse
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from bintrack.argtypes import positive_float
 from bintrack.cli import main as cli
 from support import HUNG, REPO, bintrack
 
@@ -165,3 +167,13 @@ def test_a_package_the_installation_leaves_out_is_one_line_and_status_2(package,
     assert result.returncode == 2 and len(err.splitlines()) == 1, err
     assert err == (f"bintrack eval: error: this needs the Python package {package}, which this installation "
                    f"leaves out (pip install {package})")
+
+
+@pytest.mark.parametrize("text", ["-1", "0", "nan", "inf", "-inf"])
+def test_a_positive_option_says_the_same_for_every_value_it_refuses(text):
+    """--gospa-c -1 once said "must be a number >= 0", though 0 is refused too."""
+    with pytest.raises(argparse.ArgumentTypeError, match=r"must be a finite number > 0, got"):
+        positive_float(text)
+    with pytest.raises(argparse.ArgumentTypeError, match="not a number: 'x'"):
+        positive_float("x")
+    assert positive_float("0.5") == 0.5

@@ -25,9 +25,14 @@ def non_negative_float(text: str) -> float:
 
 def positive_float(text: str) -> float:
     """A finite number > 0."""
-    value = non_negative_float(text)
+    try:
+        value = non_negative_float(text)
+    except argparse.ArgumentTypeError as exc:
+        if str(exc).startswith("not a number"):
+            raise
+        value = 0.0  # negative, infinite or nan: the same message as 0, which is refused too
     if value == 0:
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
     return value
 
 
