@@ -12,12 +12,16 @@ from pathlib import Path
 from bintrack.errors import CommandError
 
 
-def non_negative_float(text: str) -> float:
-    """A finite number ≥ 0."""
+def _number(text: str) -> float:
     try:
-        value = float(text)
+        return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+
+
+def non_negative_float(text: str) -> float:
+    """A finite number ≥ 0."""
+    value = _number(text)
     if not (math.isfinite(value) and value >= 0):
         raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
     return value
@@ -25,13 +29,8 @@ def non_negative_float(text: str) -> float:
 
 def positive_float(text: str) -> float:
     """A finite number > 0."""
-    try:
-        value = non_negative_float(text)
-    except argparse.ArgumentTypeError as exc:
-        if str(exc).startswith("not a number"):
-            raise
-        value = 0.0  # negative, infinite or nan: the same message as 0, which is refused too
-    if value == 0:
+    value = _number(text)
+    if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
     return value
 
