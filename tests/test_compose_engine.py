@@ -279,7 +279,10 @@ class Project:
         """What a hung run shows: each container's state and log, with every thread's Python stack
         (the services write them on SIGUSR1), and the host's connections to the published ports."""
         names = list(self.compose["services"])
-        running = [n for n in names if self.state(n)["State"]["Running"]]
+        found = {n: podman(self.env, "inspect", self.container(n), check=False) for n in names}
+        # a container can be gone altogether (seen once, in a full run): say so rather than fail here
+        running = [n for n, out in found.items() if out.returncode == 0 and json.loads(out.stdout)[0]["State"]["Running"]]
+        gone = [self.container(n) for n, out in found.items() if out.returncode != 0]
         for name in running:
             podman(self.env, "kill", "-s", "USR1", self.container(name), check=False)
         stack = "most recent call first"
@@ -290,7 +293,8 @@ class Project:
         sockets = subprocess.run(["ss", "-tnp"], capture_output=True, text=True).stdout if shutil.which("ss") else ""
         published = [line for line in sockets.splitlines() if ":7447 " in line or ":8080 " in line] or ["none (or no ss)"]
         logs = "\n".join(f"--- {n}\n{self.log(n)[-6000:]}" for n in names)
-        return (f"{states}--- the map's last answer: {MAP_ANSWERS or 'none'}\n--- host connections to 7447 and 8080\n"
+        return (f"{states}--- containers that no longer exist: {', '.join(gone) or 'none'}\n"
+                f"--- the map's last answer: {MAP_ANSWERS or 'none'}\n--- host connections to 7447 and 8080\n"
                 + "\n".join(published) + f"\n{logs}")
 
     def close(self) -> None:
