@@ -49,6 +49,8 @@ QUIET_RANGES = 4.0
 QUIET_SAMPLES = 2
 PAIR_RANGES = 5.0
 BLOCK = 20
+MIN_INTERVAL_SAMPLES = 2 * BLOCK
+"""fewer samples get no intervals: every resample would be the recording itself, of width 0"""
 PFA_FLOOR = 1e-4
 """no estimate below this (per sample): a finite weight for a detection in the fusion"""
 
@@ -202,12 +204,10 @@ def calibrate(series: SampleSeries, stated_range: float, *, boot: int = 200, see
     point = _point_fit(status, positions, stated_range, period)
     rng = np.random.default_rng(seed)
     k = len(status)
-    block = min(BLOCK, k)
     draws = []
-    # fewer than two blocks: every resample would be the recording itself, an interval of width 0
-    for _ in range(boot if k >= 2 * BLOCK else 0):
-        starts = rng.integers(0, k - block + 1, size=math.ceil(k / block))
-        sample = np.concatenate([status[s:s + block] for s in starts])[:k]
+    for _ in range(boot if k >= MIN_INTERVAL_SAMPLES else 0):
+        starts = rng.integers(0, k - BLOCK + 1, size=math.ceil(k / BLOCK))
+        sample = np.concatenate([status[s:s + BLOCK] for s in starts])[:k]
         draws.append(np.array(_point_fit(sample, positions, stated_range, period)))
     draws = np.array(draws) if draws else None  # boot × 4 × (n + 1)
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from bintrack.argtypes import int_at_least, output_folder, positive_float
-from bintrack.calibration.pir_calibration import BLOCK, Estimate, Fit, calibrate, calibrate_supervised
+from bintrack.calibration.pir_calibration import MIN_INTERVAL_SAMPLES, Estimate, Fit, calibrate, calibrate_supervised
 from bintrack.calibration.sample_series import sample_series
 from bintrack.errors import CommandError
 from bintrack.formats import EVENTS_FILE, TRUTH_FILE, open_dataset, write_deployment
@@ -59,9 +59,9 @@ def run(args: argparse.Namespace) -> int:
         fit = calibrate_supervised(series, truth, max_range=5.0 * stated)
     else:
         fit = calibrate(series, stated, boot=args.boot, seed=args.seed)
-        if args.boot and len(series.status) < 2 * BLOCK:
+        if args.boot and fit.pooled.range.low is None:
             print(f"calibrate: warning: only {len(series.status)} samples: too few for intervals (the bootstrap "
-                  f"needs {2 * BLOCK}), and the estimates rest on very little data", file=sys.stderr)
+                  f"needs {MIN_INTERVAL_SAMPLES}), and the estimates rest on very little data", file=sys.stderr)
     by_id = {f.id: f for f in fit.sensors}
     sensors = []
     for s in deployment.sensors:
