@@ -25,6 +25,13 @@ the calibrated dataset, as ``benchmarks/real_sensors.py`` scores ours (about 3 m
 is fitted to the scores but q, the lower-scoring of two tried. The oracle knows the count, the identities, the entries and the others' positions, so its GOSPA
 estimates a floor for any tracker with this sensor model, not a figure to reach (a better
 footprint or motion model could go lower; the annotation's own error is in it too).
+
+The count is given to those oracles, so their count error says nothing. For the count, the
+filter on how many sensors fire (``benchmarks/real_pir_count.py``; the tracker's
+:class:`~bintrack.trackers.multi.firing_count.FiringCount`) is given what only the truth knows:
+its slope a (firing sensors per person) and false alarms b by least squares on the true count,
+and then the a, b and switch (chance per sample that someone comes or goes) of a grid whose count
+error against the truth itself is lowest, fitted to the very sequence it is scored on.
 """
 
 from __future__ import annotations
@@ -40,6 +47,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from real_pir_count import count_filter, firings_and_counts  # noqa: E402
 from real_sensors import EVAL, SEQUENCES, bintrack, stated_and_calibrated  # noqa: E402
 
 from bintrack.calibration.sample_series import sample_series  # noqa: E402
@@ -55,6 +63,10 @@ CV_NOISE = 0.5  # m²/s³: of the two tried, 0.035 (the tracker's) and 0.5, the 
 PARTICLES = 3000
 DRAWS = 300
 OBSTACLE = 1e-3  # an obstacle cell's likelihood beside a free one's (--floor-plan)
+COUNT_SWITCH = 0.02  # per sample: the tracker's (FusionConfig.count_switch under pir_settings)
+GRID_A = np.arange(1.0, 2.3001, 0.05)  # firing sensors per person
+GRID_B = (0.0, 0.1, 0.2, 0.35, 0.5, 0.8)  # firing sensors of an empty room
+GRID_SWITCH = (0.005, 0.01, 0.02, 0.05)
 ORACLES = ("random walk, online", "random walk, smoothed", "constant velocity, online", "constant velocity, smoothed")
 
 
@@ -195,6 +207,23 @@ def oracle_tracks(cells: np.ndarray, shape: tuple, people: dict, q: float) -> tu
     return {name: sorted(r) for name, r in rows.items()}, spread
 
 
+def count_oracles(dataset: Path) -> list[tuple[str, float, float, float, float]]:
+    """The count of the people from how many sensors fire (``benchmarks/real_pir_count.py``'s
+    filter, the tracker's :class:`FiringCount`), given what only the truth can give: a and b by
+    least squares of the firing sensors on the true count (switch 0.02, the tracker's), and the
+    a, b and switch of a grid whose count is nearest the truth. Rows (oracle, a, b, switch, count
+    error per frame), people inside the scored area as ``bintrack eval --area`` counts them."""
+    k, frames, n = firings_and_counts(open_dataset(dataset))
+
+    def error(a: float, b: float, switch: float) -> float:
+        return float(np.abs(count_filter(k, a, b, switch)[0][frames] - n).mean())
+
+    a, b = (float(v) for v in np.polyfit(n, k[frames], 1))
+    best = min(((error(a_, b_, s), a_, b_, s) for a_ in GRID_A for b_ in GRID_B for s in GRID_SWITCH))
+    return [("firings, the truth's a and b", a, b, COUNT_SWITCH, error(a, b, COUNT_SWITCH)),
+            ("firings, the best of a grid", float(best[1]), best[2], best[3], best[0])]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared/realdata/irtracking")
@@ -228,6 +257,9 @@ def main() -> int:
                 s = json.loads(bintrack("eval", str(dataset), str(path), *EVAL, "--json").splitlines()[0])
                 print(f"{name:<10} {oracle:<28} {spread:>6.2f} {s['gospa_mean']:>8.3f} {s['gospa_localisation_mean']:>16.3f} "
                       f"{100 * s['mota']:>6.1f}% {s['motp']:>6.3f} {s['target_count_error_mean']:>6.3f}", flush=True)
+            for oracle, a, b, switch, count in count_oracles(dataset):
+                print(f"{name:<10} {oracle:<28} {'':>6} {'':>8} {'':>16} {'':>7} {'':>6} {count:>6.3f}"
+                      f"  (a {a:.2f}, b {b:.2f}, switch {switch})", flush=True)
     return 0
 
 

@@ -43,7 +43,7 @@ from real_sensors import EVAL, bintrack, stated_and_calibrated  # noqa: E402
 
 from bintrack.calibration.sample_series import sample_series  # noqa: E402
 from bintrack.deployment_model import DiskSensor  # noqa: E402
-from bintrack.formats import open_dataset, read_tracks  # noqa: E402
+from bintrack.formats import Dataset, open_dataset, read_tracks  # noqa: E402
 from bintrack.trackers.multi.firing_count import FiringCount  # noqa: E402
 
 AREA = (0.0, 0.0, 8.0, 14.0)  # m: where people are counted, as the scores count them
@@ -58,6 +58,19 @@ def count_filter(k: np.ndarray, a: float, b: float, switch: float) -> tuple[np.n
         log_l += count.update(int(fired))
         out.append(int(np.argmax(count.belief)))
     return np.array(out), log_l
+
+
+def firings_and_counts(data: Dataset) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """k, the firing sensors in every sample; the annotated samples' indices; the true count in
+    each of them, people inside ``AREA`` (as the scores count them)."""
+    series = sample_series(data.deployment, data.events())
+    k = series.status.sum(axis=1)
+    xmin, ymin, xmax, ymax = AREA
+    truth = [row for row in data.truth() if xmin <= row.x <= xmax and ymin <= row.y <= ymax]
+    counts = Counter(int(round((row.t - series.t0) / series.period)) for row in truth)
+    annotated = sorted({int(round((row.t - series.t0) / series.period)) for row in data.truth()})
+    frames = np.array([j for j in annotated if 0 <= j < len(k)])
+    return k, frames, np.array([counts.get(j, 0) for j in frames])
 
 
 def blind_fit(k: np.ndarray, switch: float) -> tuple[float, float]:
@@ -78,14 +91,9 @@ def main() -> int:
         work = Path(tmp)
         dataset = stated_and_calibrated(args.data, "r1-easy", work)
         data = open_dataset(dataset)
-        series = sample_series(data.deployment, data.events())
-        k = series.status.sum(axis=1)
+        k, frames, n = firings_and_counts(data)
         xmin, ymin, xmax, ymax = AREA
         truth = [row for row in data.truth() if xmin <= row.x <= xmax and ymin <= row.y <= ymax]
-        counts = Counter(int(round((row.t - series.t0) / series.period)) for row in truth)
-        annotated = sorted({int(round((row.t - series.t0) / series.period)) for row in data.truth()})
-        frames = np.array([j for j in annotated if 0 <= j < len(k)])
-        n = np.array([counts.get(j, 0) for j in frames])
         sensors = [s for s in data.deployment.sensors if isinstance(s, DiskSensor)]
         where = np.array([(row.x, row.y) for row in truth])
         centres, reach = np.array([(s.x, s.y) for s in sensors]), np.array([s.range for s in sensors])
