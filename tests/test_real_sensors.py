@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bintrack.calibration.pir_calibration import calibrate, lens_fraction
+from bintrack.calibration.pir_calibration import _pairs_of, calibrate, lens_fraction
 from bintrack.calibration.sample_series import sample_series
 from bintrack.cli import main as cli
 from bintrack.evaluation.clear_mot import Frame, clear_mot
-from bintrack.formats import open_dataset, read_deployment
+from bintrack.formats import open_dataset, read_deployment, write_dataset
 from bintrack.deployment_model import Deployment, DiskSensor, Region
 from bintrack.sim.engine import simulate_scenario
 from bintrack.sim.recorded_paths import recording_scenario
@@ -133,6 +133,40 @@ def test_lens_fraction_is_one_at_zero_and_zero_at_two_radii():
     assert lens_fraction(0.0, 1.0) == pytest.approx(1.0)
     assert lens_fraction(2.0, 1.0) == pytest.approx(0.0)
     assert 0 < lens_fraction(1.0, 1.0) < 1
+
+
+def test_each_sensors_pairs_are_those_its_mask_selects():
+    """The radius fit's pairs of each sensor, found for all sensors at once, are the ones (and in
+    the order) that the mask ``(ii == i) | (jj == i)`` of each sensor selects."""
+    rng = np.random.default_rng(5)
+    n = 30
+    ii, jj = rng.integers(0, n, 400), rng.integers(0, n, 400)
+    keep = ii != jj
+    ii, jj = ii[keep], jj[keep]
+    pairs = _pairs_of(ii, jj, n)
+    assert len(pairs) == n
+    for i in range(n):
+        assert pairs[i].tolist() == np.flatnonzero((ii == i) | (jj == i)).tolist()
+    assert [p.size for p in _pairs_of(np.array([], int), np.array([], int), 3)] == [0, 0, 0]
+
+
+def test_calibration_reports_its_progress_and_is_unchanged_by_it(tmp_path, capsys):
+    """``progress(done, total)`` after each bootstrap fit; ``calibrate --progress`` shows it on stderr."""
+    deployment = _room()
+    events = simulate_scenario(recording_scenario(deployment, _walkers(2, duration=40.0), (0.0, 40.0)), seed=1).events
+    series = sample_series(deployment, events)
+    seen = []
+    with_progress = calibrate(series, stated_range=0.7, boot=5, progress=lambda done, total: seen.append((done, total)))
+    assert seen == [(k, 5) for k in range(1, 6)]
+    assert with_progress == calibrate(series, stated_range=0.7, boot=5)
+    write_dataset(tmp_path / "room", deployment, events)
+    args = ["calibrate", str(tmp_path / "room"), "--boot", "5", "--progress", "--out"]
+    assert cli.main([*args, str(tmp_path / "fit")]) == 0
+    err = capsys.readouterr().err
+    assert "calibrate: bootstrap: 5/5 (100 %)" in err
+    assert cli.main([*args[:-2], "--no-progress", "--out", str(tmp_path / "quiet")]) == 0
+    assert "bootstrap" not in capsys.readouterr().err
+    assert (tmp_path / "fit" / "deployment.json").read_bytes() == (tmp_path / "quiet" / "deployment.json").read_bytes()
 
 
 def _room(pd=0.6, pfa=0.002, hold=None, radius=1.3) -> Deployment:

@@ -35,6 +35,7 @@ none for a recording shorter than two blocks.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -121,6 +122,19 @@ def lens_fraction(d, r) -> np.ndarray:
     return area / (math.pi * r * r)
 
 
+def _pairs_of(ii: np.ndarray, jj: np.ndarray, n: int) -> list[np.ndarray]:
+    """For each sensor 0..n−1, the indices (ascending) of the pairs (ii[p], jj[p]) it is part of:
+    ``np.flatnonzero((ii == i) | (jj == i))`` for every i at once."""
+    p = np.arange(len(ii))
+    who, which = np.concatenate([ii, jj]), np.concatenate([p, p])
+    both = ii == jj  # a pair of a sensor with itself is listed once
+    keep = np.concatenate([np.ones(len(ii), bool), ~both])
+    who, which = who[keep], which[keep]
+    order = np.lexsort((which, who))
+    who, which = who[order], which[order]
+    return np.split(which, np.searchsorted(who, np.arange(1, n)))
+
+
 def _point_fit(status: np.ndarray, positions: np.ndarray, stated: float, period: float) -> tuple[np.ndarray, ...]:
     """Per-sensor and pooled (last entry) radius, pd, pfa, hold (s) of one sample matrix."""
     n = status.shape[1]
@@ -172,8 +186,8 @@ def _point_fit(status: np.ndarray, positions: np.ndarray, stated: float, period:
     d, c, w = distance[ii, jj], co[ii, jj] / np.maximum(on[ii], 1), on[ii]
     pdj = pd[jj]
 
-    def sse(r, b, mask=slice(None)):
-        return float(np.sum(w[mask] * (c[mask] - (pdj[mask] * lens_fraction(d[mask], r) + b)) ** 2))
+    def sse(r, b, w=w, c=c, pdj=pdj, d=d):  # over all pairs, or over one sensor's (the arrays sliced)
+        return float(np.sum(w * (c - (pdj * lens_fraction(d, r) + b)) ** 2))
 
     if d.size:
         res = minimize(lambda p: sse(p[0], p[1]), x0=[2 * stated, 0.05], bounds=[(0.2 * stated, 10 * stated), (0.0, 0.9)],
@@ -183,21 +197,23 @@ def _point_fit(status: np.ndarray, positions: np.ndarray, stated: float, period:
         r0, b0 = stated, 0.0
     radius = []
     prior = 0.05 * max(w.sum(), 1.0) / max(n, 1)  # weight of the pooled radius, as a few pairs' worth
-    for i in range(n):
-        mask = (ii == i) | (jj == i)
-        if not mask.any():
+    for i, pairs in enumerate(_pairs_of(ii, jj, n)):
+        if not pairs.size:
             radius.append(r0)
             continue
-        fit = minimize_scalar(lambda r: sse(r, b0, mask) + prior * ((r - r0) / r0) ** 2,
+        own = w[pairs], c[pairs], pdj[pairs], d[pairs]
+        fit = minimize_scalar(lambda r: sse(r, b0, *own) + prior * ((r - r0) / r0) ** 2,
                               bounds=(0.2 * stated, 10 * stated), method="bounded")
         radius.append(float(fit.x))
     radius = np.array(radius + [r0])
     return radius, pd, pfa, hold * period
 
 
-def calibrate(series: SampleSeries, stated_range: float, *, boot: int = 200, seed: int = 0) -> Fit:
+def calibrate(series: SampleSeries, stated_range: float, *, boot: int = 200, seed: int = 0,
+              progress: Callable[[int, int], None] | None = None) -> Fit:
     """The unsupervised fit of every sensor of ``series`` (see the module's text); ``stated_range``
-    (units) is the only prior: the scale of the neighbourhoods and where the search starts."""
+    (units) is the only prior: the scale of the neighbourhoods and where the search starts.
+    ``progress(done, total)`` is called after each of the bootstrap's fits."""
     if not stated_range > 0:
         raise ValueError(f"stated range must be positive, got {stated_range}")
     status, positions, period = series.status, series.positions, series.period
@@ -205,10 +221,13 @@ def calibrate(series: SampleSeries, stated_range: float, *, boot: int = 200, see
     rng = np.random.default_rng(seed)
     k = len(status)
     draws = []
-    for _ in range(boot if k >= MIN_INTERVAL_SAMPLES else 0):
+    total = boot if k >= MIN_INTERVAL_SAMPLES else 0
+    for done in range(1, total + 1):
         starts = rng.integers(0, k - BLOCK + 1, size=math.ceil(k / BLOCK))
         sample = np.concatenate([status[s:s + BLOCK] for s in starts])[:k]
         draws.append(np.array(_point_fit(sample, positions, stated_range, period)))
+        if progress is not None:
+            progress(done, total)
     draws = np.array(draws) if draws else None  # boot × 4 × (n + 1)
 
     def est(p: int, i: int) -> Estimate:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from bintrack.argtypes import int_at_least, output_folder, positive_float
+from bintrack.cli.progress import Progress
 from bintrack.calibration.pir_calibration import MIN_INTERVAL_SAMPLES, Estimate, Fit, calibrate, calibrate_supervised
 from bintrack.calibration.sample_series import sample_series
 from bintrack.errors import CommandError
@@ -35,6 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="bootstrap resamples for the intervals (default: %(default)s; 0: none)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the bootstrap (default: %(default)s)")
     parser.add_argument("--sensors", action="store_true", help="also print every sensor's estimates")
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                        help="show the bootstrap's progress on stderr (default: when stderr is a terminal)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -58,7 +61,11 @@ def run(args: argparse.Namespace) -> int:
         truth = {k: (np.array([a[0] for a in v]), np.array([a[1:] for a in v])) for k, v in rows.items()}
         fit = calibrate_supervised(series, truth, max_range=5.0 * stated)
     else:
-        fit = calibrate(series, stated, boot=args.boot, seed=args.seed)
+        progress = Progress("calibrate: bootstrap", args.boot, enabled=args.progress)
+        try:
+            fit = calibrate(series, stated, boot=args.boot, seed=args.seed, progress=progress.update)
+        finally:
+            progress.close()
         if args.boot and fit.pooled.range.low is None:
             print(f"calibrate: warning: only {len(series.status)} samples: too few for intervals (the bootstrap "
                   f"needs {MIN_INTERVAL_SAMPLES}), and the estimates rest on very little data", file=sys.stderr)
