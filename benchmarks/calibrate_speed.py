@@ -55,7 +55,13 @@ def main() -> int:
     parser.add_argument("--runs", type=int, default=3, help="timed runs of each (default 3)")
     parser.add_argument("--baseline", metavar="REV", help="a git revision to time beside this tree")
     args = parser.parse_args()
-    grids = [int(g) for g in args.grids.split(",")]
+    try:
+        grids = [int(g) for g in args.grids.split(",")]
+    except ValueError:
+        parser.error(f"--grids: not comma-separated whole numbers: {args.grids!r}")
+    if args.baseline and subprocess.run(["git", "-C", str(REPO), "rev-parse", "--verify", "-q", f"{args.baseline}^{{commit}}"],
+                                        capture_output=True).returncode:
+        parser.error(f"--baseline: no such revision in {REPO}: {args.baseline}")
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         trees = {"this tree": REPO / "shared"}

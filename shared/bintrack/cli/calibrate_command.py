@@ -63,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         progress = Progress("calibrate: bootstrap", args.boot, enabled=args.progress)
         try:
-            fit = calibrate(series, stated, boot=args.boot, seed=args.seed, progress=progress.update)
+            fit = calibrate(series, stated, boot=args.boot, seed=args.seed,
+                            progress=lambda done, total: progress.update(done, force=done == total))
         finally:
             progress.close()
         if args.boot and fit.pooled.range.low is None:
