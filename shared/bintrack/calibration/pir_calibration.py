@@ -18,15 +18,20 @@ Unsupervised estimates (sampling period P):
   of H ≥ 1 samples a miss hides inside the held output, and pd comes from the on-runs: an
   on-run minus its held part is geometric, P(G = g) = (1 − pd)·pd^(g − 1), MLE pd = 1 − 1/mean(G)
   (biased low where passages are short, since a run ends when the person leaves).
-* pfa: firings of a sensor while no other sensor within ``QUIET_RANGES`` stated ranges of it
-  fires for ±``QUIET_SAMPLES`` samples (isolated firings), over the samples where they are quiet.
+* pfa: firings of a sensor while no other sensor within 4 stated ranges of it fires for
+  ±``QUIET_SAMPLES`` samples (isolated firings), over the samples where they are quiet; within
+  2, then 1 stated range where fewer than ``MIN_QUIET`` of all samples are quiet (false alarms
+  so frequent, or a field so busy, that a wide neighbourhood is never quiet).
 * footprint radius: co-firing with the neighbours at known distances, over the triggered samples
   (each on-run without its held last H samples). Given that sensor i fires,
   the person is somewhere in its footprint, so neighbour j (at distance d) fires in the same
   sample with probability c_ij = pd_j·A(d, r)/(π r²) + b, A the area of the lens of two disks of
   radius r at distance d, b the background (other people, false alarms). r and b are fitted by
   weighted least squares to the pairs within ``PAIR_RANGES`` stated ranges, pooled, then r per
-  sensor over the pairs it is in (shrunk towards the pooled r).
+  sensor over the pairs it is in (shrunk towards the pooled r). The pooled search starts at
+  twice the stated range, and again from the best of ``RADIUS_GRID`` radii where that one is
+  better: below half the nearest pair's distance no pair overlaps, the fit is flat in r, and a
+  search that steps there stops.
 
 Intervals: a moving-block bootstrap over time (blocks of ``BLOCK`` samples), 2.5 % and 97.5 %;
 none for a recording shorter than two blocks.
@@ -46,12 +51,19 @@ from bintrack.calibration.sample_series import SampleSeries
 
 MIN_RUNS = 8
 PSEUDO_RUNS = 5.0
-QUIET_RANGES = 4.0
+QUIET_RANGES = (4.0, 2.0, 1.0)
+"""stated ranges: the neighbourhood that must be quiet for a firing to count as a false alarm,
+the first of these that leaves ``MIN_QUIET`` of the samples quiet"""
+MIN_QUIET = 0.05
 QUIET_SAMPLES = 2
 PAIR_RANGES = 5.0
 BLOCK = 20
 MIN_INTERVAL_SAMPLES = 2 * BLOCK
 """fewer samples get no intervals: every resample would be the recording itself, of width 0"""
+RADIUS_GRID = 40
+"""radii (geometric, 0.2 to 10 stated ranges) from the best of which the pooled fit starts again"""
+RESTART_GAIN = 1e-3
+"""... when that radius beats the first fit's sum of squares by at least this fraction"""
 PFA_FLOOR = 1e-4
 """no estimate below this (per sample): a finite weight for a detection in the fusion"""
 
@@ -122,6 +134,11 @@ def lens_fraction(d, r) -> np.ndarray:
     return area / (math.pi * r * r)
 
 
+def _background(r: float, w: np.ndarray, c: np.ndarray, pdj: np.ndarray, d: np.ndarray) -> float:
+    """The weighted least-squares b of c = pd_j·A(d, r)/(π r²) + b for a fixed r, within [0, 0.9]."""
+    return float(np.clip(np.sum(w * (c - pdj * lens_fraction(d, r))) / np.sum(w), 0.0, 0.9))
+
+
 def _pairs_of(ii: np.ndarray, jj: np.ndarray, n: int) -> list[np.ndarray]:
     """For each sensor 0..n−1, the indices (ascending) of the pairs (ii[p], jj[p]) it is part of:
     ``np.flatnonzero((ii == i) | (jj == i))`` for every i at once."""
@@ -165,16 +182,19 @@ def _point_fit(status: np.ndarray, positions: np.ndarray, stated: float, period:
             pd = np.where(hold == 0, np.clip(triplet, 0.05, 0.99), pd)
 
     distance = cdist(positions, positions)
-    near = (distance < QUIET_RANGES * stated) & ~np.eye(n, dtype=bool)
     window = np.ones(2 * QUIET_SAMPLES + 1)
     # "full" cut to the samples, not "same": that one is as long as the window when the series is shorter
     busy = np.array([np.convolve(status[:, j], window)[QUIET_SAMPLES:QUIET_SAMPLES + len(status)] > 0
                      for j in range(n)]).T  # k × j
-    quiet_on, quiet_n = np.zeros(n), np.zeros(n)
-    for i in range(n):
-        quiet = ~busy[:, near[i]].any(axis=1)
-        quiet_n[i] = quiet.sum()
-        quiet_on[i] = status[quiet, i].sum()
+    for reach in QUIET_RANGES:
+        near = (distance < reach * stated) & ~np.eye(n, dtype=bool)
+        quiet_on, quiet_n = np.zeros(n), np.zeros(n)
+        for i in range(n):
+            quiet = ~busy[:, near[i]].any(axis=1)
+            quiet_n[i] = quiet.sum()
+            quiet_on[i] = status[quiet, i].sum()
+        if quiet_n.sum() >= MIN_QUIET * status.size:
+            break
     pfa0 = max(quiet_on.sum() / max(quiet_n.sum(), 1.0), PFA_FLOOR)
     pfa = np.maximum((quiet_on + 20.0 * pfa0) / (quiet_n + 20.0), PFA_FLOOR)
     pfa = np.append(pfa, pfa0)
@@ -190,8 +210,16 @@ def _point_fit(status: np.ndarray, positions: np.ndarray, stated: float, period:
         return float(np.sum(w * (c - (pdj * lens_fraction(d, r) + b)) ** 2))
 
     if d.size:
-        res = minimize(lambda p: sse(p[0], p[1]), x0=[2 * stated, 0.05], bounds=[(0.2 * stated, 10 * stated), (0.0, 0.9)],
-                       method="L-BFGS-B")
+        bounds = [(0.2 * stated, 10 * stated), (0.0, 0.9)]
+        res = minimize(lambda p: sse(p[0], p[1]), x0=[2 * stated, 0.05], bounds=bounds, method="L-BFGS-B")
+        # Below half the nearest pair's distance no pair overlaps and the sse is flat in r: a
+        # first step from 2·stated that lands there stops. Then start again from the best radius
+        # of a grid, each with its least-squares b.
+        radii = np.geomspace(*bounds[0], RADIUS_GRID)
+        best = min((sse(r, b), r, b) for r, b in zip(radii, (_background(r, w, c, pdj, d) for r in radii)))
+        if best[0] < res.fun * (1.0 - RESTART_GAIN):
+            again = minimize(lambda p: sse(p[0], p[1]), x0=list(best[1:]), bounds=bounds, method="L-BFGS-B")
+            res = again if again.fun < res.fun else res
         r0, b0 = float(res.x[0]), float(res.x[1])
     else:
         r0, b0 = stated, 0.0
