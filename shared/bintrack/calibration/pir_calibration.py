@@ -55,6 +55,7 @@ QUIET_RANGES = (4.0, 2.0, 1.0)
 """stated ranges: the neighbourhood that must be quiet for a firing to count as a false alarm,
 the first of these that leaves ``MIN_QUIET`` of the samples quiet"""
 MIN_QUIET = 0.05
+"""of all the sensors' samples"""
 QUIET_SAMPLES = 2
 PAIR_RANGES = 5.0
 BLOCK = 20
