@@ -235,6 +235,16 @@ def test_calibration_finds_a_footprint_wider_than_the_sensors_spacing():
     assert np.median([f.range.value for f in fit.sensors]) == pytest.approx(4.0, rel=0.25)
 
 
+def test_sensors_that_never_fire_do_not_shrink_the_footprints():
+    """Thirteen of the 64 sensors dead: as neighbours they were expected to fire with the pooled
+    pd and never did, which took the pooled radius from 4.1 to 3.3 m. Pairs need both to fire."""
+    field, events = _field(pfa=0.002)
+    dead = {f"s{i}" for i in range(0, 64, 5)}
+    whole = calibrate(sample_series(field, events), stated_range=4.0, boot=0)
+    some_dead = calibrate(sample_series(field, [e for e in events if e.sensor not in dead]), stated_range=4.0, boot=0)
+    assert some_dead.pooled.range.value == pytest.approx(whole.pooled.range.value, rel=0.02)
+
+
 def test_calibration_measures_frequent_false_alarms():
     """At pfa 0.05 per sample no sample is quiet within 4 stated ranges (16 m) of a sensor, and
     pfa came out at its floor, 1e-4; within a closer neighbourhood it is found."""

@@ -27,7 +27,8 @@ Unsupervised estimates (sampling period P):
   the person is somewhere in its footprint, so neighbour j (at distance d) fires in the same
   sample with probability c_ij = pd_j·A(d, r)/(π r²) + b, A the area of the lens of two disks of
   radius r at distance d, b the background (other people, false alarms). r and b are fitted by
-  weighted least squares to the pairs within ``PAIR_RANGES`` stated ranges, pooled, then r per
+  weighted least squares to the pairs within ``PAIR_RANGES`` stated ranges whose sensors both
+  fire at least once (a dead sensor says nothing of footprints), pooled, then r per
   sensor over the pairs it is in (shrunk towards the pooled r). The pooled search starts at
   twice the stated range, and again from the best of ``RADIUS_GRID`` radii where that one is
   better: below half the nearest pair's distance no pair overlaps, the fit is flat in r, and a
@@ -203,7 +204,7 @@ def _point_fit(status: np.ndarray, positions: np.ndarray, stated: float, period:
     triggers = _without_hold(status, hold[:-1].astype(int))
     on = triggers.sum(axis=0).astype(float)
     co = triggers.T.astype(float) @ triggers.astype(float)
-    ii, jj = np.nonzero((distance < PAIR_RANGES * stated) & ~np.eye(n, dtype=bool) & (on[:, None] > 0))
+    ii, jj = np.nonzero((distance < PAIR_RANGES * stated) & ~np.eye(n, dtype=bool) & (on[:, None] > 0) & (on[None, :] > 0))
     d, c, w = distance[ii, jj], co[ii, jj] / np.maximum(on[ii], 1), on[ii]
     pdj = pd[jj]
 
