@@ -142,16 +142,12 @@ def _background(r: float, w: np.ndarray, c: np.ndarray, pdj: np.ndarray, d: np.n
 
 
 def _pairs_of(ii: np.ndarray, jj: np.ndarray, n: int) -> list[np.ndarray]:
-    """For each sensor 0..n−1, the indices (ascending) of the pairs (ii[p], jj[p]) it is part of:
-    ``np.flatnonzero((ii == i) | (jj == i))`` for every i at once."""
+    """For each sensor 0..n−1, the indices (ascending) of the pairs (ii[p], jj[p]) of two
+    different sensors it is part of: ``np.flatnonzero((ii == i) | (jj == i))`` for every i at once."""
     p = np.arange(len(ii))
     who, which = np.concatenate([ii, jj]), np.concatenate([p, p])
-    both = ii == jj  # a pair of a sensor with itself is listed once
-    keep = np.concatenate([np.ones(len(ii), bool), ~both])
-    who, which = who[keep], which[keep]
     order = np.lexsort((which, who))
-    who, which = who[order], which[order]
-    return np.split(which, np.searchsorted(who, np.arange(1, n)))
+    return np.split(which[order], np.searchsorted(who[order], np.arange(1, n)))
 
 
 def _point_fit(status: np.ndarray, positions: np.ndarray, stated: float, period: float) -> tuple[np.ndarray, ...]:
