@@ -213,7 +213,7 @@ def count_oracles(dataset: Path) -> list[tuple[str, float, float, float, float]]
     least squares of the firing sensors on the true count (switch 0.02, the tracker's), and the
     a, b and switch of a grid whose count is nearest the truth. Rows (oracle, a, b, switch, count
     error per frame), people inside the scored area as ``bintrack eval --area`` counts them."""
-    k, frames, n = firings_and_counts(open_dataset(dataset))
+    k, frames, n, _ = firings_and_counts(open_dataset(dataset))
 
     def error(a: float, b: float, switch: float) -> float:
         return float(np.abs(count_filter(k, a, b, switch)[0][frames] - n).mean())

@@ -60,9 +60,9 @@ def count_filter(k: np.ndarray, a: float, b: float, switch: float) -> tuple[np.n
     return np.array(out), log_l
 
 
-def firings_and_counts(data: Dataset) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def firings_and_counts(data: Dataset) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
     """k, the firing sensors in every sample; the annotated samples' indices; the true count in
-    each of them, people inside ``AREA`` (as the scores count them)."""
+    each of them, people inside ``AREA`` (as the scores count them); and those people's truth rows."""
     series = sample_series(data.deployment, data.events())
     k = series.status.sum(axis=1)
     xmin, ymin, xmax, ymax = AREA
@@ -70,7 +70,7 @@ def firings_and_counts(data: Dataset) -> tuple[np.ndarray, np.ndarray, np.ndarra
     counts = Counter(int(round((row.t - series.t0) / series.period)) for row in truth)
     annotated = sorted({int(round((row.t - series.t0) / series.period)) for row in data.truth()})
     frames = np.array([j for j in annotated if 0 <= j < len(k)])
-    return k, frames, np.array([counts.get(j, 0) for j in frames])
+    return k, frames, np.array([counts.get(j, 0) for j in frames]), truth
 
 
 def blind_fit(k: np.ndarray, switch: float) -> tuple[float, float]:
@@ -91,9 +91,7 @@ def main() -> int:
         work = Path(tmp)
         dataset = stated_and_calibrated(args.data, "r1-easy", work)
         data = open_dataset(dataset)
-        k, frames, n = firings_and_counts(data)
-        xmin, ymin, xmax, ymax = AREA
-        truth = [row for row in data.truth() if xmin <= row.x <= xmax and ymin <= row.y <= ymax]
+        k, frames, n, truth = firings_and_counts(data)
         sensors = [s for s in data.deployment.sensors if isinstance(s, DiskSensor)]
         where = np.array([(row.x, row.y) for row in truth])
         centres, reach = np.array([(s.x, s.y) for s in sensors]), np.array([s.range for s in sensors])
