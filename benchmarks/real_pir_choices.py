@@ -82,6 +82,8 @@ VARIANTS = {
     "lag 6, births anywhere (not 10 x fewer inside)": ({}, {"birth_inside": 1.0}, 6),
     "lag 6, births inside 0.3 x": ({}, {"birth_inside": 0.3}, 6),
     "lag 6, coast 1": ({}, {"coast": 1}, 6),
+    "lag 6, smoothed with the chain's q (0.035, not 0.1)": ({}, {"smooth_noise": 0.035}, 6),
+    "lag 6, smoothed with q 0.3": ({}, {"smooth_noise": 0.3}, 6),
     "lag 6, shared copies within 2 ranges": ({"shared_gap": 2.0}, {}, 6),
     "lag 6, blob split at 5 nats": ({"expected_split_gain": 5.0}, {}, 6),
     "no track kept for a person standing still (still_misses 0, not 40)": ({}, {"still_misses": 0}),

@@ -1,6 +1,6 @@
 """The fixed-lag smoother of mcmcda's tracks (``bintrack track --lag``): late by exactly the lag,
-made from the tracker's later association of each scan's reports, gaps filled, positions
-averaged, nothing invented."""
+made from the tracker's later association of each scan's reports, gaps bridged, positions
+smoothed, nothing invented."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import math
 import pickle
 from collections import deque
 
+import numpy as np
 import pytest
 
 from bintrack.bus_payloads import PositionReport, PositionReports, Track, TrackSet, Transition
@@ -15,6 +16,7 @@ from bintrack.cli import main as cli
 from bintrack.errors import TrackerConfigError
 from bintrack.formats import read_tracks
 from bintrack.trackers.multi.fixed_lag import FixedLagSmoother
+from bintrack.trackers.multi.kalman_model import kf_smoothed
 
 from support import DATASETS
 
@@ -28,6 +30,8 @@ class Scripted:
     ``revised[(m, n)]`` where given (scan n's association as known after scan m)."""
 
     name = "scripted"
+    motion = (0.1, 2.25, 0.25)
+    """q, a new track's speed variance, the least report variance (MCMCDATracker.motion)"""
 
     def __init__(self, scans: list[dict[int, float]], window: int = 3,
                  revised: dict[tuple[int, int], dict[int, float]] | None = None):
@@ -44,7 +48,7 @@ class Scripted:
     def update(self, message):
         m, t = self.step, message.t
         self.step += 1
-        known = [(0.5 * n, {k: (x, 0.0) for k, x in self.revised.get((m, n), self.scans[n]).items()})
+        known = [(0.5 * n, {k: _report(x) for k, x in self.revised.get((m, n), self.scans[n]).items()})
                  for n in range(max(0, m - self.window + 1), m + 1)]
         self.revisions.append(known)
         return [PositionReports(t=t, reports=[PositionReport(x=0.0, y=0.0, cov=((1.0, 0.0), (0.0, 1.0)))]),
@@ -52,6 +56,12 @@ class Scripted:
 
     def flush(self, t):
         return []
+
+
+def _report(x: float | tuple[float, float]) -> tuple[float, float, float, float]:
+    """A report at (x, 0), of variance 0.25 on each axis unless given as (x, variance)."""
+    x, var = x if isinstance(x, tuple) else (x, 0.25)
+    return x, 0.0, var, var
 
 
 def scan(n: int) -> Transition:
@@ -85,11 +95,10 @@ def test_each_scan_comes_lag_scans_late_and_all_at_the_end():
     rest = smoother.flush(math.inf)
     assert [m.t for m in rest] == [2.0, 2.5]
     assert all(m.tracker == "scripted" for m in early + rest)
-    # a straight walk is its own moving average, but at the ends, where the average is one-sided
-    assert [shown(m)[1] for m in early[1:]] == [1.0, 2.0, 3.0]
-    # the velocity is the slope of the positions averaged: 1 unit per 0.5 s
-    assert [track.vx for m in early[1:] for track in m.tracks] == pytest.approx([2.0, 2.0, 2.0])
-    assert [track.vy for m in early[1:] for track in m.tracks] == pytest.approx([0.0, 0.0, 0.0])
+    # a straight walk is followed, at 1 unit per 0.5 s once the start's still prior is behind
+    assert [shown(m)[1] for m in early + rest] == pytest.approx([0.0, 1.0, 2.0, 3.0, 4.0, 5.0], abs=0.2)
+    assert [track.vx for m in early[2:] + rest for track in m.tracks] == pytest.approx([2.0] * 4, abs=0.1)
+    assert [track.vy for m in early + rest for track in m.tracks] == pytest.approx([0.0] * 6)
 
 
 def test_a_gap_the_lag_closes_is_filled_and_a_longer_one_is_not():
@@ -99,20 +108,65 @@ def test_a_gap_the_lag_closes_is_filled_and_a_longer_one_is_not():
     result = given(smoother, out)
     assert [n for n, m in enumerate(result) if 1 in shown(m)] == [0, 1, 2, 3]
     assert [n for n, m in enumerate(result) if 2 in shown(m)] == [0, 8]
-    # linear in time between the two reports, then averaged over a scan on each side, where
-    # known within the lag (at scan 0 scan 1 is not yet filled: its gap closes at scan 2)
+    # the gap is bridged along the model's path, halfway between the two reports
     smoother, out = run([{1: 0.0}, {}, {1: 4.0}, {}], lag=1)
-    assert [shown(m) for m in given(smoother, out)] == [{1: 0.0}, {1: 2.0}, {1: 3.0}, {}]
+    result = [shown(m) for m in given(smoother, out)]
+    assert [sorted(m) for m in result] == [[1], [1], [1], []]
+    assert result[1][1] == pytest.approx(2.0, abs=0.05)
 
 
-def test_a_long_lag_averages_over_at_most_three_scans_each_side():
-    # a person who walks out and back: x = 0, 1, …, 7, 6, …, 0; the turn at scan 7
+def rts_by_matrices(observations, t, q, v0):
+    """The textbook Rauch–Tung–Striebel smoother of a constant-velocity model, in 2 × 2 matrices,
+    started at the first observation: (position, velocity) at ``t``."""
+    times = sorted({u for u, _, _ in observations} | {t})
+    z = {u: (p, r) for u, p, r in observations}
+    m, P = np.array([z[times[0]][0], 0.0]), np.diag([z[times[0]][1], v0])
+    filtered, predicted, steps = [(m, P)], [(m, P)], [None]
+    for prev, now in zip(times, times[1:]):
+        dt = now - prev
+        F = np.array([[1.0, dt], [0.0, 1.0]])
+        m, P = F @ m, F @ P @ F.T + q * np.array([[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]])
+        predicted.append((m, P))
+        steps.append(F)
+        if now in z:
+            gain = P[:, 0] / (P[0, 0] + z[now][1])
+            m, P = m + gain * (z[now][0] - m[0]), P - np.outer(gain, P[0, :])
+        filtered.append((m, P))
+    smoothed = filtered[-1][0]
+    for k in range(len(times) - 2, times.index(t) - 1, -1):
+        C = filtered[k][1] @ steps[k + 1].T @ np.linalg.inv(predicted[k + 1][1])
+        smoothed = filtered[k][0] + C @ (smoothed - predicted[k + 1][0])
+    return tuple(smoothed)
+
+
+def test_the_smoother_is_rauch_tung_striebel():
+    rng = np.random.default_rng(3)
+    for _ in range(100):
+        times = np.sort(rng.choice(np.arange(20) * 0.5, rng.integers(1, 10), replace=False))
+        observations = [(float(u), float(rng.normal(0, 3)), float(rng.uniform(0.05, 2))) for u in times]
+        t = float(rng.choice(np.arange(times[0], 10, 0.5)))
+        assert kf_smoothed(observations, t, 0.1, 2.25) == pytest.approx(rts_by_matrices(observations, t, 0.1, 2.25), abs=1e-9)
+
+
+def test_a_report_counts_by_its_variance_and_the_model_by_its_q():
+    # a straight walk, x = n, with one report 3 units off at scan 5: the smoother is pulled
+    # toward it as a report of variance 0.25, far less as a loose one (a shared copy's)
+    at_five = {}
+    for var in (0.25, 25.0):
+        scans = [{1: (n + 3.0, var) if n == 5 else float(n)} for n in range(11)]
+        smoother, out = run(scans, lag=3)
+        at_five[var] = shown(given(smoother, out)[5])[1]
+    assert at_five[0.25] > 5.4 and abs(at_five[25.0] - 5.0) < 0.05
+    # a person who walks out and back (x = 0, 1, …, 7, 6, …, 0, the turn at scan 7): with the
+    # tracker's q larger the smoother follows the turn closer
     xs = [float(min(n, 14 - n)) for n in range(15)]
-    for lag in (6, 20):
-        smoother, out = run([{1: x} for x in xs], lag=lag)
-        assert shown(given(smoother, out)[7]) == {1: round(sum(xs[4:11]) / 7, 9)}  # ±3 scans, not ±10
-    smoother, out = run([{1: x} for x in xs], lag=2)
-    assert shown(given(smoother, out)[7]) == {1: round(sum(xs[6:9]) / 3, 9)}  # half the lag, ±1
+    at_turn = {}
+    for q in (0.1, 10.0):
+        smoother = FixedLagSmoother(Scripted([{1: x} for x in xs]), 3)
+        smoother.inner.motion = (q, 2.25, 0.25)
+        out = [smoother.update(scan(n)) for n in range(len(xs))]
+        at_turn[q] = shown(given(smoother, out)[7])[1]
+    assert 7.0 - at_turn[10.0] < 0.5 < 7.0 - at_turn[0.1]
 
 
 def test_the_trackers_later_association_of_a_scan_is_what_is_shown():
@@ -161,7 +215,7 @@ def test_a_checkpoint_of_the_smoother_before_revisions_goes_on():
         result += [m for m in old.update(scan(n)) if isinstance(m, TrackSet)]
     result += old.flush(math.inf)
     assert [m.t for m in result] == [0.5 * n for n in range(1, 8)]
-    assert [shown(m)[1] for m in result] == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 6.5]
+    assert [shown(m)[1] for m in result] == pytest.approx([1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0], abs=0.1)
 
 
 def test_a_lag_below_one_scan_is_refused_by_the_smoother():

@@ -383,6 +383,7 @@ def test_mcmcda_parameters_in_metres_convert_to_feet():
     ft = m.in_units(FOOT)
     assert ft.max_speed == pytest.approx(m.max_speed / FOOT) and ft.initial_speed == pytest.approx(m.initial_speed / FOOT)
     assert ft.process_noise == pytest.approx(m.process_noise / FOOT ** 2)
+    assert ft.smooth_noise is None and MCMCDAConfig(smooth_noise=0.1).in_units(FOOT).smooth_noise == pytest.approx(0.1 / FOOT ** 2)
     assert ft.extra_variance == pytest.approx(m.extra_variance / FOOT ** 2)
     assert ft.false_alarm_rate == pytest.approx(m.false_alarm_rate * FOOT ** 2)
     assert ft.birth_rate == pytest.approx(m.birth_rate * FOOT ** 2)
@@ -397,7 +398,7 @@ def test_mcmcda_parameters_in_metres_convert_to_feet():
 
 
 @pytest.mark.parametrize("field, value", [("pd", 1.0), ("window", 1), ("false_alarm_rate", 0.0), ("n_mc", 0),
-                                          ("reidentify", -1.0), ("still_misses", -1), ("still_pd", 0.0), ("still_prior", 1.0), ("still_reach", 0.0)])
+                                          ("reidentify", -1.0), ("smooth_noise", 0.0), ("still_misses", -1), ("still_pd", 0.0), ("still_prior", 1.0), ("still_reach", 0.0)])
 def test_a_parameter_out_of_range_is_refused(field, value):
     with pytest.raises(ValueError, match=field):
         MCMCDAConfig(**{field: value})

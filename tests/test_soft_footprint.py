@@ -62,6 +62,7 @@ def test_only_a_fitted_deployment_gets_the_real_pir_settings():
     assert fusion.evidence_reference is None and config.exit_depth is None  # chosen outdoors, not tried here
     assert config.max_misses == 5 and config.coast == 2  # a person unreported for a scan is still shown
     assert config.process_noise == 0.035  # people in a room turn more than walkers crossing a field
+    assert config.smooth_noise == 0.1  # --lag's smoother lets them turn more freely still
     assert (config.entry_depth, config.entry_gain) == (1.0, 4.0)  # people coming in are shown from one report
     assert GridFusion(_room(hold=0.0), fusion).soft.spread == pytest.approx(np.full(5, 0.6))
 

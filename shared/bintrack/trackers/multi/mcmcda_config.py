@@ -54,6 +54,9 @@ class MCMCDAConfig:
     """reports a track needs (fixed and in the window) before it is published"""
     coast: int = 1
     """scans a published track is predicted past its last report before it is dropped"""
+    smooth_noise: float | None = None
+    """q of the fixed-lag smoother's Rauch–Tung–Striebel pass (:mod:`.fixed_lag`), units²/s³;
+    None: ``process_noise``, the chain's own. Real PIR (:mod:`.pir_settings`) uses 0.1 m²/s³"""
     exit_depth: float | None = 1.0
     """a published track unreported in a scan is not shown predicted (``coast``) when its
     prediction lies less than this far (units; negative: outside) inside the sensor field, the
@@ -110,6 +113,7 @@ class MCMCDAConfig:
         q), and the rates per unit area by metres_per_unit²."""
         k = 1.0 / metres_per_unit
         return replace(self, process_noise=self.process_noise * k * k, extra_variance=self.extra_variance * k * k,
+                       smooth_noise=None if self.smooth_noise is None else self.smooth_noise * k * k,
                        initial_speed=self.initial_speed * k, max_speed=self.max_speed * k,
                        false_alarm_rate=self.false_alarm_rate / (k * k), birth_rate=self.birth_rate / (k * k),
                        exit_depth=None if self.exit_depth is None else self.exit_depth * k,
@@ -125,7 +129,7 @@ class MCMCDAConfig:
                   ("false_alarm_rate", self.false_alarm_rate > 0), ("birth_rate", self.birth_rate > 0),
                   ("max_speed", self.max_speed > 0), ("initial_speed", self.initial_speed > 0),
                   ("process_noise", self.process_noise > 0), ("extra_variance", self.extra_variance >= 0),
-                  ("gate_sigmas", self.gate_sigmas > 0), ("coast", self.coast >= 0), ("reidentify", self.reidentify >= 0), ("min_reports", self.min_reports >= 2),
+                  ("gate_sigmas", self.gate_sigmas > 0), ("coast", self.coast >= 0), ("smooth_noise", self.smooth_noise is None or self.smooth_noise > 0), ("reidentify", self.reidentify >= 0), ("min_reports", self.min_reports >= 2),
                   ("adapt_rates", self.adapt_rates >= 0), ("entry_gain", self.entry_gain >= 0),
                   ("still_misses", self.still_misses >= 0), ("still_reach", self.still_reach > 0),
                   ("still_pd", 0 < self.still_pd < 1), ("still_prior", 0 < self.still_prior < 1)]

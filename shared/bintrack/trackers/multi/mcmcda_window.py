@@ -112,17 +112,18 @@ class ScanWindow:
             del self._gates[rid]
             self._owner.pop(rid, None)
 
-    def associations(self) -> list[tuple[float, dict[int, tuple[float, float]]]]:
+    def associations(self) -> list[tuple[float, dict[int, tuple[float, float, float, float]]]]:
         """The MAP's association of the window's reports, oldest scan first: per scan, its time
-        (s) and identity → (x, y) (units) of the report each labelled track holds there (a track
-        without an identity yet is left out)."""
+        (s) and identity → (x, y, x variance, y variance) (units, units²; the variances as the
+        chain scores the report) of the report each labelled track holds there (a track without
+        an identity yet is left out)."""
         held = {k: (t, {}) for k, t, _ in self._scans}
         for track in self._tracks:
             if track.label is None:
                 continue
             for rid in track.reports:
                 report = self._reports[rid]
-                held[report.scan][1][track.label] = (report.x, report.y)
+                held[report.scan][1][track.label] = (report.x, report.y, report.rx, report.ry)
         return list(held.values())
 
     def _expire_anchors(self) -> None:

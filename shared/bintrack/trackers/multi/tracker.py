@@ -79,6 +79,15 @@ class MCMCDATracker:
         if missing:
             grid.config = grid._fit.config = replace(grid.config, **missing)
 
+    @property
+    def motion(self) -> tuple[float, float, float]:
+        """The fixed-lag smoother's constant-velocity model, in the deployment's units: (q,
+        units²/s³: ``smooth_noise``, else ``process_noise``; the variance of a new track's speed,
+        units²/s²; the least variance of a report, units², ``extra_variance``)."""
+        c = self.mcmcda.config
+        q = c.process_noise if c.smooth_noise is None else c.smooth_noise
+        return q, c.initial_speed ** 2, c.extra_variance
+
     def keep_revisions(self) -> None:
         """From now on, after each scan append the MAP's association of the window's reports to
         ``revisions`` (:mod:`bintrack.trackers.multi.fixed_lag` reads and empties it)."""
