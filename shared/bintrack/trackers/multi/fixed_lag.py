@@ -117,7 +117,7 @@ class FixedLagSmoother:
             if n < self._first:
                 return
             if self._at(n)[0] == t:
-                self._scans[n - self._first] = (t, self._at(n)[1], self._with_variances(association))
+                self._scans[n - self._first] = (t, self._at(n)[1], association)
 
     @property
     def _last(self) -> int:
