@@ -213,8 +213,8 @@ def _point_fit(status: np.ndarray, positions: np.ndarray, stated: float, period:
         # Below half the nearest pair's distance no pair overlaps and the sse is flat in r: a
         # first step from 2·stated that lands there stops. Then start again from the best radius
         # of a grid, each with its least-squares b.
-        radii = np.geomspace(*bounds[0], RADIUS_GRID)
-        best = min((sse(r, b), r, b) for r, b in zip(radii, (_background(r, w, c, pdj, d) for r in radii)))
+        grid = [(r, _background(r, w, c, pdj, d)) for r in np.geomspace(*bounds[0], RADIUS_GRID)]
+        best = min((sse(r, b), r, b) for r, b in grid)
         if best[0] < res.fun * (1.0 - RESTART_GAIN):
             again = minimize(lambda p: sse(p[0], p[1]), x0=list(best[1:]), bounds=bounds, method="L-BFGS-B")
             res = again if again.fun < res.fun else res
