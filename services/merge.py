@@ -177,7 +177,7 @@ class Merge(Service):
         tick = self.decode(Clock, sample)
         if tick is None:
             return
-        lead = max(self.guard.steps.values(), default=0.0)
+        lead = self.guard.lead
         declared = {r: self.merge.final.get(r, -math.inf) for r in self.merge.live}
         for region in self.departures.silent(declared, tick.t, lead):
             self.went(region)

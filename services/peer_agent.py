@@ -17,7 +17,7 @@ from collections import deque
 import zenoh
 
 from bintrack.argtypes import non_negative_float, positive_float
-from bintrack.live.checkpoint import CHECKPOINT_SPAN
+from bintrack.live.checkpoint import CHECKPOINT_SPAN, resume_span
 from bintrack.live.service import service_main
 from bintrack.live.session_options import add_bus_arguments
 from bintrack.bus_payloads import LocalEstimate
@@ -27,20 +27,23 @@ from bintrack.trackers import PEER_TRACKERS, make_tracker
 from bintrack.live.transition_intake import TransitionConsumer
 from bintrack.message_codec import encode
 
-# s of event time of estimates kept for a restarted relay: its checkpoint is up to CHECKPOINT_SPAN
-# old, and it released up to its watermark behind that
+# s of event time of estimates kept for a restarted relay at least (resume_span when replay's lead
+# asks for more): a relay's --lateness holds its released watermark back further
 ESTIMATE_SPAN = 4 * CHECKPOINT_SPAN
 
 
 class EstimateHistory:
-    """The estimates published in the last ESTIMATE_SPAN s of event time, oldest first."""
+    """The estimates published lately, oldest first: what a restarted relay may ask for."""
 
     def __init__(self):
         self.recent: deque[LocalEstimate] = deque()
 
-    def add(self, estimate: LocalEstimate) -> None:
+    def add(self, estimate: LocalEstimate, lead: float) -> None:
+        """Keep ``estimate``; forget those more than ESTIMATE_SPAN s, or
+        :func:`~bintrack.live.checkpoint.resume_span` of replay's ``lead`` (s), older."""
         self.recent.append(estimate)
-        while self.recent and self.recent[0].t < estimate.t - ESTIMATE_SPAN:
+        oldest = estimate.t - max(ESTIMATE_SPAN, resume_span(lead))
+        while self.recent and self.recent[0].t < oldest:
             self.recent.popleft()
 
     def after(self, t: float) -> list[LocalEstimate]:
@@ -81,12 +84,12 @@ class PeerAgent(TransitionConsumer):
     def emit(self, outputs) -> None:
         for estimate in outputs:
             if isinstance(estimate, LocalEstimate) and (self.hosted is None or estimate.node in self.hosted):
-                self.estimates.add(estimate)
+                self.estimates.add(estimate, self.guard.lead)
                 self.publish(self.keys.estimate(estimate.node), estimate)
                 self.sent += 1
 
     def answer_estimates(self, query: zenoh.Query) -> None:
-        """``peer/*/estimate?after=T``: each estimate of the last ESTIMATE_SPAN s published after T
+        """``peer/*/estimate?after=T``: each estimate kept (:class:`EstimateHistory`) published after T
         (s), in order: what a restarted relay asks for."""
         try:
             after = float(query.parameters.get("after", "-inf"))

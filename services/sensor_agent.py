@@ -92,10 +92,11 @@ class SensorAgent(Service):
 
     async def _resume(self, checkpoint: SensorAgentCheckpoint) -> None:
         """Take the state saved at the last clock tick acknowledged (statuses, counters, and the
-        transitions sent in the last RESUME_SPAN s, which a receiver may still fetch: a kill
-        loses what was still in flight), then the raw samples replay published after that tick
-        (its ``recent`` queryable): what this sensor agent had when it died, and what it missed
-        while it was down (replay holds the clock meanwhile)."""
+        transitions sent lately, which a receiver may still fetch: a kill loses what was still
+        in flight, and a consumer killed with it resumes from an older checkpoint), then the raw
+        samples replay published after that tick (its ``recent`` queryable): what this sensor
+        agent had when it died, and what it missed while it was down (replay holds the clock
+        meanwhile)."""
         self.hosts.restore(checkpoint)
         self.replay.acked = checkpoint.tick
         taken = await self.replay.take(newer=False)
@@ -157,7 +158,7 @@ class SensorAgent(Service):
         self.replay.acknowledge(message)
         self.hosts.forget_before(message.t - HISTORY_SPAN)
         self.intake.say_resent()
-        self.hosts.trim(message.t)
+        self.hosts.trim(message.t, self.guard.lead)
         if self.checkpoints.path is not None:
             self.checkpoints.save(self.hosts.checkpoint(message.t))
         self.report_progress(message.t, sent=self.hosts.sent,

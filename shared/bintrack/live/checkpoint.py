@@ -40,8 +40,20 @@ if TYPE_CHECKING:
 CHECKPOINT_INTERVAL = 1.0  # s of wall clock between two throttled checkpoints …
 MEMORY_FOLDER = "/dev/shm"  # Linux's tmpfs for every user (sticky, like /tmp)
 CHECKPOINT_SPAN = 8.0  # … or s of event time, whichever comes first (well inside the sensors' HISTORY_SPAN)
+RESUME_MARGIN = 2.0  # s of event time more than resume_span's bound, for outputs that overtake one another
 
 log = logging.getLogger("bintrack")
+
+
+def resume_span(lead: float) -> float:
+    """The event time (s) of its recent outputs a service keeps for a consumer restarted from its
+    throttled checkpoint, when the clock sources may run ``lead`` s ahead of the acknowledgements.
+
+    The checkpoint was taken at a tick up to CHECKPOINT_SPAN s before the consumer's last; what
+    it had received by then lags that tick by up to ``lead`` (the upstream acknowledged only that
+    far when the tick went out), and the upstream may be ``lead`` ahead of the consumer's last
+    tick when both die."""
+    return CHECKPOINT_SPAN + 2 * lead + RESUME_MARGIN
 
 
 class CheckpointRefused(BintrackError):
@@ -130,7 +142,7 @@ class SensorAgentCheckpoint:
     sent: int  # transitions sent so far
     detector: TransitionDetector | None
     sensors: dict[str, float]  # hosted sensor → event time of its last sample, s
-    # the transitions sent in the last RESUME_SPAN s, encoded as sent (an earlier version's:
+    # the transitions sent in the last resume_span s, encoded as sent (an earlier version's:
     # (schema version, *Sent) tuples)
     recent: list[bytes | tuple] = field(default_factory=list)
     sent_to: dict[str, int] | None = None  # with regions: of ``sent``, those of each region's sensors (DESIGN §11)

@@ -84,6 +84,12 @@ class ControlGuard:
     steps: dict[str, float] = field(default_factory=dict)
     rejected: int = 0
 
+    @property
+    def lead(self) -> float:
+        """The event time (s) the clock sources announced may be in flight ahead of what their
+        consumers acknowledged (a replay's ``--max-ahead`` clock periods); 0 before any tick."""
+        return max(self.steps.values(), default=0.0)
+
     def on_presence(self, parsed: ParsedKey, present: bool) -> None:
         """Follow the ``alive/**`` tokens (a :class:`~bintrack.live.presence.Presence` listener)."""
         if parsed.kind == "alive":

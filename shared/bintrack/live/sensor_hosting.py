@@ -10,16 +10,13 @@ from typing import NamedTuple
 
 from bintrack.formats import Event
 from bintrack.keys import Keys
-from bintrack.live.checkpoint import CHECKPOINT_SPAN, SensorAgentCheckpoint
+from bintrack.live.checkpoint import SensorAgentCheckpoint, resume_span
 from bintrack.bus_payloads import RawSample, SensorState, Transition
 from bintrack.message_codec import decode, encode_transition
 from bintrack.transition_detector import TransitionDetector
 
 HISTORY = 256  # transitions kept per sensor for gap repair …
 HISTORY_SPAN = 60.0  # … and no older than this, s of event time behind the clock (memory stays flat)
-# s of event time of sent transitions a checkpoint keeps: those a kill may catch in flight, and
-# all a consumer restarted with this agent may need (its checkpoint is up to CHECKPOINT_SPAN older)
-RESUME_SPAN = CHECKPOINT_SPAN + 2.0
 TRANSITION_FIELDS = tuple(Transition.model_fields)  # an earlier checkpoint's layout of a sent transition: version, then Sent's
 
 
@@ -101,7 +98,7 @@ class HostedSensors:
         self.lose = lose
         self.sent = 0
         self.sent_to: dict[str, int] | None = None  # with regions: the transitions sent that each region takes
-        self.recent: deque[Sent] = deque()  # the transitions sent in the last RESUME_SPAN s
+        self.recent: deque[Sent] = deque()  # the transitions sent lately (see trim)
         self.recent_payloads: deque[bytes] = deque()  # … as sent (encoded): what a checkpoint keeps
         self.trail: deque[Sent] = deque()  # every sensor's history, oldest first (to trim them)
         self.sensors = {sid: HostedSensor(sid, detector, self) for sid in hosted}
@@ -129,9 +126,13 @@ class HostedSensors:
                                      list(self.recent_payloads),
                                      None if self.sent_to is None else dict(self.sent_to))
 
-    def trim(self, tick: float) -> None:
-        """Forget the sent transitions older than RESUME_SPAN before ``tick`` (s)."""
-        while self.recent and self.recent[0].t < tick - RESUME_SPAN:
+    def trim(self, tick: float, lead: float) -> None:
+        """Forget the sent transitions a checkpoint need not keep: those older than ``tick`` (s)
+        less what a consumer restarted with this agent may need when replay runs ``lead`` s
+        ahead (:func:`~bintrack.live.checkpoint.resume_span`; at most HISTORY_SPAN, all a
+        state query could give)."""
+        oldest = tick - min(resume_span(lead), HISTORY_SPAN)
+        while self.recent and self.recent[0].t < oldest:
             self.recent.popleft()
             self.recent_payloads.popleft()
 

@@ -86,7 +86,7 @@ class TransitionConsumer(Service):
         # after a restart: where the checkpoint had released to
         released = self.driver.buffer.released_until if self.driver is not None else -math.inf
         # the lead: what the replays announced may be in flight (see control_guard)
-        self.watermark = Watermark(services, self.args.lateness, lambda: max(self.guard.steps.values(), default=0.0),
+        self.watermark = Watermark(services, self.args.lateness, lambda: self.guard.lead,
                                    released, who=self.name)
         self.follow_presence(self.on_presence)
         for service in services:
